@@ -1,0 +1,140 @@
+"""Robot models: built-in, URDF and mesh loaders, normalisation, simplification, the info CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.robots import load_robot
+from rhaml_jax.robots._silhouette import silhouette_iou
+from tests.conftest import shared_path
+
+
+def test_builtin_pioneer_matches_published_size():
+    m = load_robot("pioneer3dx")
+    np.testing.assert_allclose(m.extents, [0.455, 0.381, 0.237], atol=0.01)
+    assert m.bounds[0, 2] == 0.0
+    assert len(set(map(tuple, m.face_colors))) >= 4, "per-part colours"
+    assert m.vertices.dtype == np.float32 and m.faces.dtype == np.int32
+    # Drive wheels on the axle at x = 0, touching the ground.
+    wheel = m.vertices[np.unique(m.faces[m.face_parts == m.part_names.index("left_wheel")])]
+    np.testing.assert_allclose([wheel[:, 0].mean(), wheel[:, 2].min(), wheel[:, 2].max()], [0.0, 0.0, 0.195], atol=2e-3)
+
+
+def test_pioneer_urdf_extents_and_normals():
+    m = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")))
+    np.testing.assert_allclose(m.extents, [0.45, 0.38, 0.24], atol=0.02)
+    assert m.bounds[0, 2] == 0.0
+    n = m.face_normals  # the STLs store zero normals: ours are recomputed from the winding
+    lengths = np.linalg.norm(n, axis=1)
+    assert np.mean(np.abs(lengths - 1) < 1e-4) > 0.99
+    red = np.array([0.851, 0.0, 0.0], np.float32)
+    assert np.any(np.all(np.isclose(m.face_colors, red, atol=1e-3), axis=1)), "URDF material colours"
+
+
+def test_turtlebot_urdf_in_millimetres_with_namespace_arg():
+    m = load_robot(str(shared_path("robots/turtlebot3_burger/urdf/turtlebot3_burger.main.urdf")))
+    np.testing.assert_allclose(m.extents, [0.138, 0.178, 0.191], atol=0.01)
+    assert m.bounds[0, 2] == 0.0 and len(m.faces) == 91104
+
+
+def test_dae_mesh_loads_and_mm_warning():
+    m = load_robot(str(shared_path("robots/pioneer2dx_gazebo/meshes/chassis.dae")))
+    assert len(m.faces) > 0 and m.extents.max() < 1.0
+    with pytest.warns(UserWarning, match="millimetres"):
+        load_robot(str(shared_path("robots/turtlebot3_burger/gazebo_lowpoly/meshes/lds.dae")))
+
+
+def test_xacro_gets_a_clear_error():
+    with pytest.raises(RhamlError, match="xacro"):
+        load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf.xacro")))
+
+
+def _write(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(RhamlError, match="missing.urdf: URDF file not found"):
+        load_robot(str(tmp_path / "missing.urdf"))
+    with pytest.raises(RhamlError, match="neither a built-in robot"):
+        load_robot("pioneer9")
+    with pytest.raises(RhamlError, match="not found"):
+        load_robot(str(tmp_path / "missing.stl"))
+    with pytest.raises(RhamlError, match="unknown robot file extension"):
+        load_robot(_write(tmp_path / "robot.step", "x"))
+    urdf = '<robot name="r"><link name="a"><visual><geometry><mesh filename="meshes/gone.stl"/></geometry></visual></link></robot>'
+    with pytest.raises(RhamlError, match="gone.stl"):
+        load_robot(_write(tmp_path / "r.urdf", urdf))
+    with pytest.raises(RhamlError, match="empty"):
+        load_robot(_write(tmp_path / "empty.obj", "# nothing\n"))
+    with pytest.raises(RhamlError, match="non-finite"):
+        load_robot(_write(tmp_path / "nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"))
+    with pytest.raises(RhamlError, match="XML"):
+        load_robot(_write(tmp_path / "broken.urdf", "<robot><link"))
+
+
+def test_urdf_primitives_origins_and_package_paths(tmp_path):
+    pkg = tmp_path / "my_robot"
+    (pkg / "urdf").mkdir(parents=True)
+    (pkg / "meshes").mkdir()
+    import trimesh
+
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(pkg / "meshes" / "cube.stl")
+    urdf = """<robot name="r">
+      <material name="blue"><color rgba="0 0 1 1"/></material>
+      <link name="base"><visual><origin xyz="0 0 0.1"/><geometry><box size="0.4 0.2 0.2"/></geometry>
+        <material name="blue"/></visual></link>
+      <link name="top"><visual><geometry><mesh filename="package://my_robot/meshes/cube.stl" scale="0.5 0.5 0.5"/></geometry></visual></link>
+      <link name="wheel"><visual><origin rpy="1.5707963 0 0"/><geometry><cylinder radius="0.1" length="0.05"/></geometry></visual></link>
+      <joint name="j1" type="fixed"><parent link="base"/><child link="top"/><origin xyz="0.1 0 0.3"/></joint>
+      <joint name="j2" type="continuous"><parent link="base"/><child link="wheel"/><origin xyz="0 0.2 0.1"/></joint>
+    </robot>"""
+    m = load_robot(_write(pkg / "urdf" / "r.urdf", urdf))
+    # base box z in [0, 0.2]; top cube 0.1 wide centred at z 0.3 -> up to 0.35; wheel (axis along y) x in [-0.1, 0.1]
+    np.testing.assert_allclose(m.bounds, [[-0.2, -0.1, 0.0], [0.2, 0.225, 0.35]], atol=1e-6)
+    blue = m.face_colors[m.face_parts == m.part_names.index("base")]
+    np.testing.assert_allclose(blue, np.tile([0, 0, 1], (len(blue), 1)))
+
+
+def test_sample_surface_is_uniform_by_area():
+    m = load_robot("pioneer3dx")
+    pts = m.sample_surface(20000, seed=3)
+    assert pts.shape == (20000, 3) and pts.dtype == np.float32
+    np.testing.assert_array_equal(pts, m.sample_surface(20000, seed=3))
+    # Uniform by area <=> the sample mean converges to the area-weighted centroid of the surface
+    # (standard error here about 0.7 mm), and the points lie on the faces' planes.
+    centroid = (m.face_areas[:, None] * m.vertices[m.faces].mean(axis=1)).sum(0) / m.face_areas.sum()
+    np.testing.assert_allclose(pts.mean(0), centroid, atol=3e-3)
+    vertex_mean = m.vertices.mean(0)
+    assert np.abs(vertex_mean - centroid).max() > 3e-3 * 2, "the test must tell area- from vertex-weighting"
+
+
+def test_simplify_respects_budget_and_keeps_silhouette():
+    m = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")))
+    s = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")), max_faces=2000)
+    assert len(s.faces) <= 2000 and s.bounds[0, 2] == 0.0
+    assert np.all(s.bounds[0] >= m.bounds[0] - 1e-6) and np.all(s.bounds[1] <= m.bounds[1] + 1e-6)
+    iou = silhouette_iou(m, s, n_views=10)
+    assert iou.mean() > 0.95 and iou.min() > 0.9, iou
+
+
+def _info(*args):
+    return subprocess.run([sys.executable, "-m", "rhaml_jax.info", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_info_cli_and_errors(tmp_path):
+    r = _info("--robot", str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")))
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert {"name", "vertices", "faces", "extents_m", "min_z"} <= set(d) and d["min_z"] == 0.0
+    for bad in (str(tmp_path / "none.stl"), _write(tmp_path / "x.foo", "")):
+        r = _info("--robot", bad)
+        assert r.returncode == 2 and "Traceback" not in r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("error: ")
