@@ -1,0 +1,108 @@
+"""Anisotropic convolution (ACN), the paper's eqs. (1)-(2).
+
+For a C-channel input X and a kernel set K = {k_1..k_n}:
+  omega_p = softmax over the n sizes, per direction, of f(X[p])   (f: 1x1 conv, no bias,
+            C -> 2n outputs; the weights are shared across channels, as in AIC-Net)
+  out[p]  = X[p] + sum_{u in {x, y}} sum_v omega^u_{p,v} g(X, k_v, phi^u_v)[p]
+with g the 1 x k (u = x, along W) or k x 1 (u = y, along H) 'same' convolution with bias,
+dense (C -> C, the paper's size) or depthwise.  K = {} is the plain 3x3 depthwise convolution
+of InceptionNeXt (no residual, no mixing weights).
+
+Parameters (a plain dict, also the NNX module's layout):
+  mix: (C, 2n) with column u * n + v;  x{k}, y{k}: (k, C, C) dense or (k, C) depthwise;
+  bx{k}, by{k}: (C,);  for K = {}: w: (3, 3, C), b: (C,).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+from jax import lax
+
+from rhaml_jax.amlnet import ops
+
+__all__ = ["acn", "acn_reference", "ACN", "init_acn_params"]
+
+
+def _mix_weights(logits, n: int):
+    b, h, w, _ = logits.shape
+    return jax.nn.softmax(logits.reshape(b, h, w, 2, n), axis=-1)
+
+
+def acn(p: dict, x, kernels: tuple[int, ...], dense: bool):
+    """Fast ACN (see ops.py for why it is written this way)."""
+    if not kernels:
+        return ops.depthwise_2d(x, p["w"], p["b"])
+    n, c = len(kernels), x.shape[-1]
+    h, w = x.shape[1:3]
+    if dense:
+        # One matrix product for the mixing logits and every tap of every kernel, x then y.
+        mats = [p["mix"]]
+        for u in "xy":
+            for k in kernels:
+                mats.append(p[f"{u}{k}"].transpose(1, 0, 2).reshape(c, k * c))
+        z = jnp.einsum("bhwc,cd->bhwd", x, jnp.concatenate(mats, axis=1))
+        m = _mix_weights(z[..., : 2 * n], n)
+        taps = sum(kernels)
+        out = x
+        for ui, (u, axis) in enumerate((("x", 2), ("y", 1))):
+            zu = lax.slice_in_dim(z, 2 * n + ui * taps * c, 2 * n + (ui + 1) * taps * c, axis=3)
+            off = 0
+            for v, k in enumerate(kernels):
+                g = ops.shifted_tap_sum(zu, k, c, axis, offset=off) + p[f"b{u}{k}"]
+                out = out + m[..., ui, v, None] * g
+                off += k
+        return out
+    m = _mix_weights(ops.pointwise(x, p["mix"]), n)
+    out = x
+    for ui, (u, axis) in enumerate((("x", 2), ("y", 1))):
+        for v, k in enumerate(kernels):
+            g = ops.depthwise_1d(x, p[f"{u}{k}"], p[f"b{u}{k}"], axis=axis)
+            out = out + m[..., ui, v, None] * g
+    return out
+
+
+def acn_reference(p: dict, x, kernels: tuple[int, ...], dense: bool):
+    """The same ACN with plain `lax.conv_general_dilated` calls, term by term as in eq. (2)."""
+    if not kernels:
+        return ops.depthwise_2d_ref(x, p["w"], p["b"])
+    n = len(kernels)
+    m = _mix_weights(ops.pointwise_ref(x, p["mix"]), n)
+    conv = ops.dense_1d_ref if dense else ops.depthwise_1d_ref
+    out = x
+    for ui, (u, axis) in enumerate((("x", 2), ("y", 1))):
+        for v, k in enumerate(kernels):
+            out = out + m[..., ui, v, None] * conv(x, p[f"{u}{k}"], p[f"b{u}{k}"], axis=axis)
+    return out
+
+
+def _trunc(key, shape, std=0.02):
+    return std * jax.random.truncated_normal(key, -2.0, 2.0, shape, jnp.float32)
+
+
+def init_acn_params(key, c: int, kernels: tuple[int, ...], dense: bool) -> dict:
+    if not kernels:
+        return {"w": _trunc(key, (3, 3, c)), "b": jnp.zeros((c,))}
+    keys = iter(jax.random.split(key, 1 + 2 * len(kernels)))
+    p = {"mix": _trunc(next(keys), (c, 2 * len(kernels)))}
+    for u in "xy":
+        for k in kernels:
+            p[f"{u}{k}"] = _trunc(next(keys), (k, c, c) if dense else (k, c))
+            p[f"b{u}{k}"] = jnp.zeros((c,))
+    return p
+
+
+class ACN(nnx.Module):
+    """NNX holder of the ACN parameters; `impl` picks the fast or the reference kernels."""
+
+    def __init__(self, c: int, kernels: tuple[int, ...], dense: bool, *, rngs: nnx.Rngs):
+        self.kernels, self.dense = tuple(kernels), bool(dense)
+        self.p = nnx.Dict({k: nnx.Param(v) for k, v in init_acn_params(rngs.params(), c, kernels, dense).items()})
+
+    def params(self) -> dict:
+        return {k: v[...] for k, v in self.p.items()}
+
+    def __call__(self, x, impl: str = "fast"):
+        f = acn if impl == "fast" else acn_reference
+        return f(self.params(), x, self.kernels, self.dense)

@@ -1,0 +1,184 @@
+"""Model configurations (frozen dataclasses) and the registry of named configs.
+
+A config fully determines a network; checkpoints store `config_to_dict(cfg)` beside the
+weights and rebuild the model with `config_from_dict`.
+
+Named configs
+-------------
+- ``paper``: InceptionNeXt-Small backbone with AIncep blocks (dense ACN, K = {3, 5, 7}), a
+  two-layer FC neck (768 -> 1024 -> 1024) and a 4-output head, 224 x 224 input
+  (DESIGN.md section 7: 49.9 M parameters, 8.85 GMACs).
+- ``paper_k0``, ``paper_k3``, ``paper_k35``: the Table II ablation at paper size
+  (K = {} is the plain 3x3 depthwise branch of InceptionNeXt).
+- ``paper_dw``: the paper network with depthwise ACN kernels (8.38 GMACs).
+- ``cpu``: the network that trains on the project's 2-core CPU machine in about two hours
+  (see `CPU_RATIONALE`), plus its Table II ablation ``cpu_k0``, ``cpu_k3``, ``cpu_k35``.
+- ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
+- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_frontnet``: test-size networks (seconds to compile).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal, Union
+
+from rhaml_jax.errors import RhamlError
+
+__all__ = [
+    "AMLNetConfig",
+    "FrontNetConfig",
+    "ModelConfig",
+    "CONFIGS",
+    "CPU_RATIONALE",
+    "get_config",
+    "config_names",
+    "config_to_dict",
+    "config_from_dict",
+    "num_outputs",
+]
+
+AngleHead = Literal["psi", "cossin"]
+
+
+@dataclass(frozen=True)
+class AMLNetConfig:
+    """AMLNet: stem 4x4/4 + BN; stages of AIncep blocks; BN + conv 2x2/2 between stages;
+    global average pooling; FC neck with GELU; linear head.
+
+    acn_kernels: the set K of ACN kernel sizes; () means the plain 3x3 depthwise branch.
+    acn_dense: ACN 1xk / kx1 kernels dense over the C/8 branch channels (paper size) or
+      depthwise.
+    angle_head: "psi" outputs (o, x, y, psi) as in the paper; "cossin" outputs
+      (o, x, y, cos psi, sin psi) and decodes psi with atan2 (documented option).
+    """
+
+    name: str
+    input_hw: tuple[int, int] = (224, 224)
+    depths: tuple[int, ...] = (3, 3, 27, 3)
+    dims: tuple[int, ...] = (96, 192, 384, 768)
+    mlp_ratios: tuple[int, ...] = (4, 4, 4, 3)
+    acn_kernels: tuple[int, ...] = (3, 5, 7)
+    acn_dense: bool = True
+    band_kernel: int = 11
+    branch_ratio: int = 8
+    neck: tuple[int, ...] = (1024, 1024)
+    angle_head: AngleHead = "psi"
+    layer_scale_init: float = 1e-6
+    drop_path: float = 0.0
+    kind: Literal["amlnet"] = "amlnet"
+
+    def __post_init__(self):
+        n = len(self.depths)
+        if not (len(self.dims) == len(self.mlp_ratios) == n and n >= 1):
+            raise RhamlError(f"config {self.name}: depths, dims and mlp_ratios need equal lengths")
+        if any(k % 2 == 0 or k < 1 for k in self.acn_kernels):
+            raise RhamlError(f"config {self.name}: acn_kernels must be odd, got {self.acn_kernels}")
+        if len(set(self.acn_kernels)) != len(self.acn_kernels):
+            raise RhamlError(f"config {self.name}: acn_kernels repeats a size: {self.acn_kernels}")
+        if any(c // self.branch_ratio < 1 for c in self.dims):
+            raise RhamlError(f"config {self.name}: dims {self.dims} too narrow for branch_ratio {self.branch_ratio}")
+        stride = 4 * 2 ** (n - 1)
+        h, w = self.input_hw
+        if h % stride or w % stride:
+            raise RhamlError(f"config {self.name}: input_hw {self.input_hw} must be divisible by {stride}")
+        if self.angle_head not in ("psi", "cossin"):
+            raise RhamlError(f"config {self.name}: angle_head must be 'psi' or 'cossin'")
+
+
+@dataclass(frozen=True)
+class FrontNetConfig:
+    """PULP-Frontnet: 5x5/2 conv + BN + ReLU + 2x2 max-pool, three blocks of two 3x3 convs
+    (the first of each stride 2) with BN + ReLU, dropout, one FC layer on the flat features."""
+
+    name: str
+    input_hw: tuple[int, int] = (224, 224)
+    stem_channels: int = 32
+    channels: tuple[int, ...] = (32, 64, 128)
+    dropout: float = 0.5
+    angle_head: AngleHead = "psi"
+    kind: Literal["frontnet"] = "frontnet"
+
+    def __post_init__(self):
+        stride = 4 * 2 ** len(self.channels)
+        h, w = self.input_hw
+        if h % stride or w % stride:
+            raise RhamlError(f"config {self.name}: input_hw {self.input_hw} must be divisible by {stride}")
+
+
+ModelConfig = Union[AMLNetConfig, FrontNetConfig]
+
+CPU_RATIONALE = """\
+`cpu` config: input 128 x 160 (H x W), the 480 x 640 camera image at 0.25 x 0.267 (close to
+its 4:3 aspect; divisible by the network's stride 32, final grid 4 x 5); widths (32, 64, 128,
+256) = 1/3 of the paper's; depths (2, 2, 6, 2); the paper's dense ACN with K = {3, 5, 7}, so
+the Table II question can still be asked at this size; neck 256 -> 256 -> 256; layer scale
+initialised at 0.1 instead of 1e-6 (a short training run cannot afford residual branches that
+start switched off).  About 0.2 GMACs and 2 M parameters: a training step runs at a few tens of
+images/s here (BENCHMARKS.md), i.e. roughly 100-200 k images (1-2 paper epochs of 80 k) in two
+hours.  The robot at the far end of the scenarios (7 m) still spans about 6 x 4 pixels at
+this input size, the smallest size at which its silhouette is more than a blob."""
+
+
+def _amlnet(name: str, **kw) -> AMLNetConfig:
+    return AMLNetConfig(name=name, **kw)
+
+
+_CPU = dict(
+    input_hw=(128, 160),
+    depths=(2, 2, 6, 2),
+    dims=(32, 64, 128, 256),
+    mlp_ratios=(4, 4, 4, 3),
+    neck=(256, 256),
+    layer_scale_init=0.1,
+)
+_TINY = dict(input_hw=(32, 32), depths=(1, 1, 1, 1), dims=(16, 16, 32, 32), mlp_ratios=(2, 2, 2, 2), neck=(16,), layer_scale_init=0.1)
+
+CONFIGS: dict[str, ModelConfig] = {
+    "paper": _amlnet("paper"),
+    "paper_k0": _amlnet("paper_k0", acn_kernels=()),
+    "paper_k3": _amlnet("paper_k3", acn_kernels=(3,)),
+    "paper_k35": _amlnet("paper_k35", acn_kernels=(3, 5)),
+    "paper_dw": _amlnet("paper_dw", acn_dense=False),
+    "cpu": _amlnet("cpu", **_CPU),
+    "cpu_k0": _amlnet("cpu_k0", acn_kernels=(), **_CPU),
+    "cpu_k3": _amlnet("cpu_k3", acn_kernels=(3,), **_CPU),
+    "cpu_k35": _amlnet("cpu_k35", acn_kernels=(3, 5), **_CPU),
+    "cpu_cossin": _amlnet("cpu_cossin", angle_head="cossin", **_CPU),
+    "frontnet": FrontNetConfig("frontnet"),
+    "tiny": _amlnet("tiny", **_TINY),
+    "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),
+    "tiny_k0": _amlnet("tiny_k0", acn_kernels=(), **_TINY),
+    "tiny_frontnet": FrontNetConfig("tiny_frontnet", input_hw=(32, 32), stem_channels=8, channels=(8, 8, 16)),
+}
+
+
+def config_names() -> list[str]:
+    return list(CONFIGS)
+
+
+def get_config(name: str) -> ModelConfig:
+    try:
+        return CONFIGS[name]
+    except KeyError:
+        raise RhamlError(f"--config: unknown model config {name!r}; known: {', '.join(CONFIGS)}") from None
+
+
+def num_outputs(cfg: ModelConfig) -> int:
+    return 5 if cfg.angle_head == "cossin" else 4
+
+
+def config_to_dict(cfg: ModelConfig) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cfg).items()}
+
+
+def config_from_dict(d: dict) -> ModelConfig:
+    kind = d.get("kind")
+    cls = {"amlnet": AMLNetConfig, "frontnet": FrontNetConfig}.get(kind)
+    if cls is None:
+        raise RhamlError(f"model config: unknown kind {kind!r}")
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise RhamlError(f"model config: unknown field(s) {sorted(unknown)}")
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})

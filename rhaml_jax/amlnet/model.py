@@ -1,0 +1,76 @@
+"""AMLNet (DESIGN.md section 7): stem 4x4/4 + BN; stages of AIncep blocks with BN + conv
+2x2/2 downsampling before stages 2-4; global average pooling; FC neck (GELU); linear head.
+
+Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std).
+Output: raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
+angle_head = "cossin"; `heads.decode` turns either into (o probability, x, y, psi).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+
+from rhaml_jax.amlnet import ops
+from rhaml_jax.amlnet.block import AIncepBlock, trunc_param
+from rhaml_jax.amlnet.config import AMLNetConfig, num_outputs
+from rhaml_jax.amlnet.norm import BatchNorm
+
+__all__ = ["AMLNet", "normalize_images"]
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def normalize_images(images):
+    return (images - jnp.asarray(IMAGENET_MEAN, images.dtype)) / jnp.asarray(IMAGENET_STD, images.dtype)
+
+
+class Linear(nnx.Module):
+    def __init__(self, a: int, b: int, *, rngs: nnx.Rngs):
+        self.w = trunc_param(rngs.params(), (a, b))
+        self.b = nnx.Param(jnp.zeros((b,)))
+
+    def __call__(self, x):
+        return x @ self.w[...] + self.b[...]
+
+
+class AMLNet(nnx.Module):
+    def __init__(self, cfg: AMLNetConfig, *, rngs: nnx.Rngs):
+        self.cfg = cfg
+        d0 = cfg.dims[0]
+        self.stem = trunc_param(rngs.params(), (4, 4, 3, d0))
+        self.stem_b = nnx.Param(jnp.zeros((d0,)))
+        self.stem_norm = BatchNorm(d0)
+        downs, stages = [], []
+        for i, (depth, c, r) in enumerate(zip(cfg.depths, cfg.dims, cfg.mlp_ratios)):
+            if i:
+                prev = cfg.dims[i - 1]
+                downs.append(nnx.Dict(norm=BatchNorm(prev), w=trunc_param(rngs.params(), (2, 2, prev, c)), b=nnx.Param(jnp.zeros((c,)))))
+            stages.append(nnx.List([AIncepBlock(c, r, cfg, rngs=rngs) for _ in range(depth)]))
+        self.downs = nnx.List(downs)
+        self.stages = nnx.List(stages)
+        widths = (cfg.dims[-1],) + tuple(cfg.neck)
+        self.neck = nnx.List([Linear(a, b, rngs=rngs) for a, b in zip(widths[:-1], widths[1:])])
+        self.head = Linear(widths[-1], num_outputs(cfg), rngs=rngs)
+
+    def features(self, images, train: bool = False, key=None, impl: str = "fast"):
+        patch = ops.patchify if impl == "fast" else ops.patchify_ref
+        x = self.stem_norm(patch(normalize_images(images), self.stem[...], self.stem_b[...]), train)
+        n = 0
+        for i, stage in enumerate(self.stages):
+            if i:
+                d = self.downs[i - 1]
+                x = patch(d["norm"](x, train), d["w"][...], d["b"][...])
+            for blk in stage:
+                k = None if key is None else jax.random.fold_in(key, n)
+                x = blk(x, train, k, impl)
+                n += 1
+        return jnp.mean(x, axis=(1, 2))
+
+    def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
+        h = self.features(images, train, key, impl)
+        for fc in self.neck:
+            h = jax.nn.gelu(fc(h), approximate=False)
+        return self.head(h)

@@ -1,0 +1,135 @@
+"""Pure convolution kernels of AMLNet, NHWC, in two implementations.
+
+"fast": what runs on XLA's CPU backend at matmul-like speed.  XLA's own depthwise (grouped)
+convolution runs at 0.1-0.2 GMAC/s there, several hundred times below a matmul, so
+- depthwise convolutions are sums of shifted slices times per-channel weights (XLA fuses
+  the whole sum into one loop);
+- 1x1 convolutions and the patchify convolutions (stem 4x4/4, downsampling 2x2/2) are
+  reshapes + matrix products;
+- a dense 1xk / kx1 convolution is computed "taps first": one matrix product of the input
+  with every tap's (C_in, C_out) matrix side by side, then a shifted-slice sum of the
+  per-tap outputs (conv(x)[w] = sum_j (x @ W_j)[w + j - k//2], zero outside).
+"reference": the same operations as plain `lax.conv_general_dilated` calls; used by the tests
+and by MAC counting (every multiply-accumulate is then a convolution or a matrix product).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+DN = ("NHWC", "HWIO", "NHWC")
+
+
+def _pad_axis(x, axis: int, p: int):
+    pads = [(0, 0)] * x.ndim
+    pads[axis] = (p, p)
+    return jnp.pad(x, pads)
+
+
+def _window(xp, axis: int, start: int, size: int):
+    return lax.slice_in_dim(xp, start, start + size, axis=axis)
+
+
+# ----------------------------------------------------------------------------- depthwise
+def depthwise_1d(x, w, b=None, axis: int = 2):
+    """Depthwise 'same' convolution along `axis` (1 = H, 2 = W); w: (k, C), b: (C,)."""
+    k = w.shape[0]
+    p = k // 2
+    n = x.shape[axis]
+    xp = _pad_axis(x, axis, p)
+    out = _window(xp, axis, 0, n) * w[0]
+    for j in range(1, k):
+        out = out + _window(xp, axis, j, n) * w[j]
+    return out if b is None else out + b
+
+
+def depthwise_2d(x, w, b=None):
+    """Depthwise 'same' kxk convolution; w: (kh, kw, C)."""
+    kh, kw = w.shape[:2]
+    h, wd = x.shape[1:3]
+    xp = jnp.pad(x, ((0, 0), (kh // 2, kh // 2), (kw // 2, kw // 2), (0, 0)))
+    out = None
+    for i in range(kh):
+        for j in range(kw):
+            t = xp[:, i : i + h, j : j + wd, :] * w[i, j]
+            out = t if out is None else out + t
+    return out if b is None else out + b
+
+
+def depthwise_1d_ref(x, w, b=None, axis: int = 2):
+    k, c = w.shape
+    kern = w.reshape((1, k, 1, c) if axis == 2 else (k, 1, 1, c))
+    out = lax.conv_general_dilated(x, kern, (1, 1), "SAME", dimension_numbers=DN, feature_group_count=c)
+    return out if b is None else out + b
+
+
+def depthwise_2d_ref(x, w, b=None):
+    kh, kw, c = w.shape
+    out = lax.conv_general_dilated(x, w.reshape(kh, kw, 1, c), (1, 1), "SAME", dimension_numbers=DN, feature_group_count=c)
+    return out if b is None else out + b
+
+
+# ----------------------------------------------------------------------------- dense
+def pointwise(x, w, b=None):
+    """1x1 convolution as a matrix product; w: (C_in, C_out)."""
+    out = jnp.einsum("bhwc,cd->bhwd", x, w)
+    return out if b is None else out + b
+
+
+def pointwise_ref(x, w, b=None):
+    out = lax.conv_general_dilated(x, w[None, None], (1, 1), "VALID", dimension_numbers=DN)
+    return out if b is None else out + b
+
+
+def patchify(x, w, b=None):
+    """Non-overlapping sxs convolution with stride s (stem, downsampling); w: (s, s, C_in, C_out)."""
+    s = w.shape[0]
+    bsz, h, wd, c = x.shape
+    p = x.reshape(bsz, h // s, s, wd // s, s, c).transpose(0, 1, 3, 2, 4, 5).reshape(bsz, h // s, wd // s, s * s * c)
+    out = jnp.einsum("bhwk,kd->bhwd", p, w.reshape(s * s * c, -1))
+    return out if b is None else out + b
+
+
+def patchify_ref(x, w, b=None):
+    s = w.shape[0]
+    out = lax.conv_general_dilated(x, w, (s, s), "VALID", dimension_numbers=DN)
+    return out if b is None else out + b
+
+
+def conv_ref(x, w, b=None, stride: int = 1):
+    """Dense 'same'-padded kxk convolution (FrontNet); w: (kh, kw, C_in, C_out)."""
+    kh, kw = w.shape[:2]
+    pad = ((kh // 2, kh // 2), (kw // 2, kw // 2))
+    out = lax.conv_general_dilated(x, w, (stride, stride), pad, dimension_numbers=DN)
+    return out if b is None else out + b
+
+
+def dense_1d_ref(x, w, b=None, axis: int = 2):
+    """Dense 'same' 1xk (axis=2) or kx1 (axis=1) convolution; w: (k, C_in, C_out)."""
+    k = w.shape[0]
+    kern = w[None] if axis == 2 else w[:, None]
+    out = lax.conv_general_dilated(x, kern, (1, 1), "SAME", dimension_numbers=DN)
+    return out if b is None else out + b
+
+
+def dense_1d(x, w, b=None, axis: int = 2):
+    """Dense 'same' 1xk / kx1 convolution, taps first (see module docstring)."""
+    k, cin, cout = w.shape
+    z = jnp.einsum("bhwc,cd->bhwd", x, w.transpose(1, 0, 2).reshape(cin, k * cout))
+    return shifted_tap_sum(z, k, cout, axis) if b is None else shifted_tap_sum(z, k, cout, axis) + b
+
+
+def shifted_tap_sum(z, k: int, cout: int, axis: int, offset: int = 0):
+    """sum_j z[..., (offset + j) * cout : (offset + j + 1) * cout] shifted by j - k//2 along
+    `axis` with zeros outside: the second half of a taps-first 1xk / kx1 convolution."""
+    p = k // 2
+    n = z.shape[axis]
+    zp = _pad_axis(z, axis, p)
+    out = None
+    for j in range(k):
+        c0 = (offset + j) * cout
+        t = lax.slice_in_dim(lax.slice_in_dim(zp, c0, c0 + cout, axis=3), j, j + n, axis=axis)
+        out = t if out is None else out + t
+    return out

@@ -1,0 +1,163 @@
+"""AMLNet: fast kernels vs plain lax convolutions, parameter/MAC counts, configs, bad input."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from rhaml_jax.amlnet import ops
+from rhaml_jax.amlnet.acn import acn, acn_reference, init_acn_params
+from rhaml_jax.amlnet.block import AIncepBlock
+from rhaml_jax.amlnet.config import (AMLNetConfig, config_from_dict, config_to_dict, get_config)
+from rhaml_jax.amlnet.count import count_macs, count_params
+from rhaml_jax.amlnet.functional import build, check_images
+from rhaml_jax.errors import RhamlError
+
+TOL = 1e-5
+
+
+def _scaled(tree, key, std=0.3):
+    """Replaces every leaf by N(0, std^2) so that every term of the network matters."""
+    leaves, treedef = jax.tree.flatten(tree)
+    keys = jax.random.split(key, len(leaves))
+    return jax.tree.unflatten(treedef, [std * jax.random.normal(k, l.shape, l.dtype) for k, l in zip(keys, leaves)])
+
+
+@pytest.mark.parametrize("kernels", [(), (3,), (3, 5), (3, 5, 7)])
+@pytest.mark.parametrize("dense", [True, False])
+def test_acn_matches_lax_reference(kernels, dense):
+    c = 5
+    p = _scaled(init_acn_params(jax.random.key(0), c, kernels, dense), jax.random.key(1))
+    x = jax.random.normal(jax.random.key(2), (2, 9, 11, c))
+    f = jax.jit(lambda p, x: acn(p, x, kernels, dense))
+    r = jax.jit(lambda p, x: acn_reference(p, x, kernels, dense))
+    a, b = f(p, x), r(p, x)
+    assert a.shape == x.shape
+    np.testing.assert_allclose(a, b, atol=TOL, rtol=TOL)
+
+
+def test_acn_reference_is_eq2_by_hand():
+    """The reference itself against eq. (2) spelled out with numpy loops (K = {3}, dense)."""
+    c, k = 2, 3
+    p = _scaled(init_acn_params(jax.random.key(3), c, (k,), True), jax.random.key(4))
+    x = np.asarray(jax.random.normal(jax.random.key(5), (1, 4, 5, c)), np.float64)
+    out = np.asarray(acn_reference(p, jnp.asarray(x, jnp.float32), (k,), True))
+    P = {n: np.asarray(v, np.float64) for n, v in p.items()}
+    want = x.copy()
+    for i in range(4):
+        for j in range(5):
+            logits = x[0, i, j] @ P["mix"]  # (2,) = (x-direction, y-direction) with n = 1
+            w = np.exp(logits - logits) / 1.0  # softmax over one size is 1
+            gx = P["bx3"].copy()
+            gy = P["by3"].copy()
+            for t in range(k):
+                jj, ii = j + t - 1, i + t - 1
+                if 0 <= jj < 5:
+                    gx += x[0, i, jj] @ P["x3"][t]
+                if 0 <= ii < 4:
+                    gy += x[0, ii, j] @ P["y3"][t]
+            want[0, i, j] += w[0] * gx + w[1] * gy
+    np.testing.assert_allclose(out, want, atol=TOL, rtol=TOL)
+
+
+@pytest.mark.parametrize("axis", [1, 2])
+def test_depthwise_and_dense_1d(axis):
+    x = jax.random.normal(jax.random.key(6), (2, 7, 13, 4))
+    w = jax.random.normal(jax.random.key(7), (11, 4))
+    b = jax.random.normal(jax.random.key(8), (4,))
+    np.testing.assert_allclose(ops.depthwise_1d(x, w, b, axis), ops.depthwise_1d_ref(x, w, b, axis), atol=TOL, rtol=TOL)
+    wd = jax.random.normal(jax.random.key(9), (5, 4, 3))
+    np.testing.assert_allclose(ops.dense_1d(x, wd, None, axis), ops.dense_1d_ref(x, wd, None, axis), atol=TOL, rtol=TOL)
+
+
+def test_patchify_and_pointwise():
+    x = jax.random.normal(jax.random.key(10), (2, 8, 12, 3))
+    w = jax.random.normal(jax.random.key(11), (4, 4, 3, 5))
+    np.testing.assert_allclose(ops.patchify(x, w), ops.patchify_ref(x, w), atol=TOL, rtol=TOL)
+    w1 = jax.random.normal(jax.random.key(12), (3, 6))
+    np.testing.assert_allclose(ops.pointwise(x, w1), ops.pointwise_ref(x, w1), atol=TOL, rtol=TOL)
+
+
+@pytest.mark.parametrize("name", ["tiny", "tiny_dw", "tiny_k0"])
+def test_block_matches_reference(name):
+    cfg = get_config(name)
+    blk = AIncepBlock(16, 2, cfg, rngs=nnx.Rngs(params=jax.random.key(0)))
+    gd, params, stats = nnx.split(blk, nnx.Param, nnx.BatchStat)
+    params = _scaled(params, jax.random.key(1))
+    x = jax.random.normal(jax.random.key(2), (2, 8, 8, 16))
+
+    @jax.jit
+    def run(params, stats, x):
+        outs = []
+        for impl in ("fast", "reference"):
+            for train in (False, True):
+                m = nnx.merge(gd, params, stats, copy=True)
+                outs.append(m(x, train, None, impl))
+        return outs
+
+    fe, ft, re_, rt = run(params, stats, x)
+    np.testing.assert_allclose(fe, re_, atol=TOL, rtol=TOL)
+    np.testing.assert_allclose(ft, rt, atol=TOL, rtol=TOL)
+    assert float(jnp.abs(fe - x).max()) > 1e-2  # the branch is not negligible
+
+
+@pytest.mark.parametrize("name", ["tiny", "tiny_frontnet"])
+def test_network_matches_reference_and_grads(name):
+    cfg = get_config(name)
+    net = build(cfg, jax.random.key(0))
+    params = _scaled(net.params, jax.random.key(1), 0.1)
+    x = jax.random.uniform(jax.random.key(2), (2, *cfg.input_hw, 3))
+
+    def loss(p, impl):
+        out, _ = net.train_apply(p, net.batch_stats, x, None, impl)
+        return jnp.sum(jnp.sin(out))
+
+    @jax.jit
+    def both(p):
+        return [jax.value_and_grad(loss)(p, impl) for impl in ("fast", "reference")]
+
+    (la, ga), (lb, gb) = both(params)
+    np.testing.assert_allclose(la, lb, atol=1e-4, rtol=TOL)
+    for u, v in zip(jax.tree.leaves(ga), jax.tree.leaves(gb)):
+        np.testing.assert_allclose(u, v, atol=1e-4, rtol=1e-4)
+    out = jax.jit(net.apply)(params, net.batch_stats, x)
+    assert out.shape == (2, 4)
+
+
+def test_paper_and_frontnet_counts():
+    paper = get_config("paper")
+    net = build(paper, abstract=True)
+    p, m = count_params(paper, net=net), count_macs(paper, net=net)
+    assert abs(p - 49.8e6) <= 0.01 * 49.8e6, p
+    assert abs(m - 8.8e9) <= 0.1e9, m
+    fn = get_config("frontnet")
+    p, m = count_params(fn), count_macs(fn)
+    assert abs(p - 0.32e6) <= 0.01 * 0.32e6, p
+    assert abs(m - 0.066e9) <= 0.001e9, m
+
+
+def test_config_roundtrip_and_validation():
+    for name in ("paper", "cpu", "frontnet", "cpu_k0"):
+        cfg = get_config(name)
+        assert config_from_dict(config_to_dict(cfg)) == cfg
+    with pytest.raises(RhamlError, match="unknown model config"):
+        get_config("nope")
+    with pytest.raises(RhamlError, match="divisible"):
+        AMLNetConfig("bad", input_hw=(100, 100))
+    with pytest.raises(RhamlError, match="odd"):
+        AMLNetConfig("bad", acn_kernels=(3, 4))
+
+
+def test_bad_images():
+    cfg = get_config("tiny")
+    good = np.zeros((2, 32, 32, 3), np.float32)
+    check_images(cfg, good)
+    with pytest.raises(RhamlError, match="32 x 32"):
+        check_images(cfg, np.zeros((2, 64, 32, 3), np.float32))
+    with pytest.raises(RhamlError, match="channels"):
+        check_images(cfg, np.zeros((2, 32, 32, 4), np.float32))
+    with pytest.raises(RhamlError, match="dtype"):
+        check_images(cfg, np.zeros((2, 32, 32, 3), np.uint8))
+    with pytest.raises(RhamlError, match="shape"):
+        check_images(cfg, np.zeros((32, 32, 3), np.float32))
