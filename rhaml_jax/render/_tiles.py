@@ -1,0 +1,100 @@
+"""Binning: each face's pixel box (grown by a margin for the soft edge) is cut into blocks of
+B x B pixels; the (face, block) pairs are numbered 0 .. needed-1 face by face and visited in
+chunks of a fixed number of pairs.
+
+Work is then proportional to the pixels each face can touch, not to every pixel against every
+face, and nothing is ever dropped: a `lax.while_loop` runs ceil(needed / chunk) chunks, each
+a fixed-shape step (one XLA program for jit, vmap, CPU and GPU alike).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from rhaml_jax.render._geometry import COORD_LIMIT, ScreenFaces
+
+
+class Layout(NamedTuple):
+    """Per-face block grid: (F,) int32 arrays; pairs of face f are numbers starts[f] .. ends[f]-1."""
+
+    ends: jnp.ndarray
+    starts: jnp.ndarray
+    x0: jnp.ndarray
+    y0: jnp.ndarray
+    x1: jnp.ndarray
+    y1: jnp.ndarray
+    nbx: jnp.ndarray
+
+    @property
+    def needed(self):
+        return self.ends[-1]
+
+
+class Pairs(NamedTuple):
+    """C (face, block) pairs and their B * B pixels (N = B * B).
+
+    face: (C,) int32 (clamped to a real face for unused slots); px, py: (C, N) int32 pixel
+    coordinates; index: (C, N) int32 flat pixel index y * W + x, or W * H (out of range, so
+    scatters drop it) where unused; used: (C, N) bool.
+    """
+
+    face: jnp.ndarray
+    px: jnp.ndarray
+    py: jnp.ndarray
+    index: jnp.ndarray
+    used: jnp.ndarray
+
+
+def layout(sf: ScreenFaces, margin, width: int, height: int, block: int) -> Layout:
+    """Face boxes grown by `margin` px, clipped to the image, in blocks of `block` px."""
+    lo = jnp.clip(sf.lo - margin, -COORD_LIMIT, COORD_LIMIT)
+    hi = jnp.clip(sf.hi + margin, -COORD_LIMIT, COORD_LIMIT)
+    x0 = jnp.maximum(jnp.ceil(lo[:, 0]), 0).astype(jnp.int32)
+    y0 = jnp.maximum(jnp.ceil(lo[:, 1]), 0).astype(jnp.int32)
+    x1 = jnp.minimum(jnp.floor(hi[:, 0]), width - 1).astype(jnp.int32)
+    y1 = jnp.minimum(jnp.floor(hi[:, 1]), height - 1).astype(jnp.int32)
+    nbx = (x1 - x0) // block + 1
+    nby = (y1 - y0) // block + 1
+    counts = jnp.where(sf.valid & (x1 >= x0) & (y1 >= y0), nbx * nby, 0)
+    ends = jnp.cumsum(counts)
+    return Layout(ends, ends - counts, x0, y0, x1, y1, jnp.maximum(nbx, 1))
+
+
+def chunk_pairs(lay: Layout, first, size: int, width: int, height: int, block: int) -> Pairs:
+    """Pairs number first .. first+size-1 (those >= needed are unused)."""
+    slot = first + jnp.arange(size, dtype=jnp.int32)
+    face = jnp.searchsorted(lay.ends, slot, side="right").astype(jnp.int32)
+    live = slot < lay.needed
+    face = jnp.minimum(face, lay.ends.shape[0] - 1)
+    local = slot - lay.starts[face]
+    nbx = lay.nbx[face]
+    bx, by = local % nbx, local // nbx
+    off = jnp.arange(block, dtype=jnp.int32)
+    px = (lay.x0[face] + bx * block)[:, None, None] + off[None, None, :]  # (C, B, B)
+    py = (lay.y0[face] + by * block)[:, None, None] + off[None, :, None]
+    used = live[:, None, None] & (px <= lay.x1[face][:, None, None]) & (py <= lay.y1[face][:, None, None])
+    px = jnp.broadcast_to(px, used.shape).reshape(size, -1)
+    py = jnp.broadcast_to(py, used.shape).reshape(size, -1)
+    used = used.reshape(size, -1)
+    index = jnp.where(used, py * width + px, width * height)
+    return Pairs(face, px, py, index, used)
+
+
+def chunk_size(block: int, chunk_pixels: int) -> int:
+    return max(1, chunk_pixels // (block * block))
+
+
+def fold_chunks(lay: Layout, size: int, body, init):
+    """carry = body(first, carry) for first = 0, size, 2 size, ... while first < needed."""
+
+    def cond(state):
+        return state[0] < lay.needed
+
+    def step(state):
+        first, carry = state
+        return first + size, body(first, carry)
+
+    return jax.lax.while_loop(cond, step, (jnp.int32(0), init))[1]
