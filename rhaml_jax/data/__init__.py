@@ -1,0 +1,25 @@
+"""Synthetic data and evaluation scenarios, written and read as BOP (images) and TUM (trajectories).
+
+- `training_sample(mesh, camera, seed, index)`: one training image, a pure function of (seed, index).
+- `circle`, `sine`, `rendezvous`, `noisy_odometry`: DESIGN.md section 3's trajectories and noise.
+- `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets.
+- `read_tum`, `write_tum`: trajectory files.
+- `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
+"""
+
+from rhaml_jax.data._bop import BopFrame, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
+from rhaml_jax.data._synth import Sample, SynthConfig, sample_rng, scenario_frame, training_sample
+from rhaml_jax.data._trajectories import Room, circle, compose, noisy_odometry, relative, rendezvous, sine
+from rhaml_jax.data._tum import read_tum, write_tum
+from rhaml_jax.data._writer import write_scenario, write_training_set
+
+__all__ = [
+    "BopFrame", "Room", "Sample", "SynthConfig", "circle", "compose", "load_bop_model", "load_mask", "load_rgb",
+    "noisy_odometry", "read_bop", "read_tum", "relative", "rendezvous", "sample_rng", "scenario_frame",
+    "scene_folders", "sine", "training_sample", "write_scenario", "write_training_set", "write_tum",
+]
+
+from rhaml_jax.data._augment import AugmentConfig, augment  # noqa: E402
+from rhaml_jax.data._pipeline import Batch, FromDisk, OnTheFly, make_batch_fn  # noqa: E402
+
+__all__ += ["AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "make_batch_fn"]

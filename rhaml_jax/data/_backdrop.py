@@ -1,0 +1,197 @@
+"""Backgrounds that teach the network the robot, not the scene (structured domain randomisation).
+
+A backdrop is either a box-shaped room (floor, ceiling and four walls, each with a random
+procedural or photographic texture, lit by the same light as the robot) seen from the
+observer's camera, or a real photograph (the few that scikit-image ships, no download).
+Everything here is host-side NumPy and a pure function of the random generator it is given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import cv2
+import numpy as np
+
+from rhaml_jax.camera import R_ROBOT_OPTICAL
+
+# scikit-image's bundled photographs (checked to load offline): scenes and objects for
+# backdrops, textures for walls and floors.
+PHOTOS = ("astronaut", "camera", "chelsea", "coffee", "coins", "rocket", "page", "text", "clock", "horse")
+TEXTURES = ("brick", "grass", "gravel")
+
+
+@dataclasses.dataclass(frozen=True)
+class Light:
+    """Lambertian light shared by the room and the robot.
+
+    direction: (3,) unit vector towards the light, in the observer's robot frame.
+    ambient, diffuse: shading = colour * (ambient + diffuse * max(0, n . l)).
+    """
+
+    direction: tuple[float, float, float]
+    ambient: float
+    diffuse: float
+
+    def in_camera(self) -> np.ndarray:
+        """The direction in the camera's optical frame (what the renderer takes)."""
+        return np.asarray(self.direction) @ R_ROBOT_OPTICAL
+
+
+def sample_light(rng: np.random.Generator) -> Light:
+    az, el = rng.uniform(-np.pi, np.pi), rng.uniform(0.2, 1.4)
+    d = (np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el))
+    ambient = rng.uniform(0.25, 0.6)
+    return Light(tuple(float(x) for x in d), float(ambient), float(rng.uniform(0.3, 1.0 - ambient + 0.3)))
+
+
+@functools.lru_cache(maxsize=None)
+def _skimage(name: str) -> np.ndarray:
+    """(H, W, 3) float32 in [0, 1] of a scikit-image bundled image."""
+    import skimage.data
+
+    img = np.asarray(getattr(skimage.data, name)())
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    return img[..., :3].astype(np.float32) / 255.0
+
+
+def photo(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
+    """A random crop of a random bundled photograph, flipped and colour-shifted: (H, W, 3) in [0, 1]."""
+    img = _skimage(PHOTOS[rng.integers(len(PHOTOS))])
+    h, w = img.shape[:2]
+    scale = rng.uniform(0.5, 1.0)
+    ch, cw = int(h * scale), int(min(w, h * scale * width / height))
+    y0, x0 = rng.integers(0, h - ch + 1), rng.integers(0, w - cw + 1)
+    crop = cv2.resize(img[y0 : y0 + ch, x0 : x0 + cw], (width, height), interpolation=cv2.INTER_AREA)
+    if rng.random() < 0.5:
+        crop = crop[:, ::-1]
+    gain = rng.uniform(0.6, 1.3, 3).astype(np.float32)
+    return np.clip(crop * gain, 0.0, 1.0)
+
+
+# ----------------------------------------------------------------------------- textures
+
+
+@dataclasses.dataclass(frozen=True)
+class Texture:
+    """A procedural texture over surface coordinates (s, t) in metres.
+
+    kind: solid | checker | stripes | tiles | noise | photo; colors: (2, 3) in [0, 1];
+    period: pattern size (m); angle: stripe direction (rad); photo: scikit-image name;
+    seed: for the noise lattice.
+    """
+
+    kind: str
+    colors: tuple
+    period: float
+    angle: float
+    photo: str
+    seed: int
+
+    def __call__(self, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+        c0, c1 = np.asarray(self.colors[0], np.float32), np.asarray(self.colors[1], np.float32)
+        p = self.period
+        if self.kind == "solid":
+            w = np.zeros_like(s)
+        elif self.kind == "checker":
+            w = ((np.floor(s / p) + np.floor(t / p)) % 2).astype(np.float32)
+        elif self.kind == "stripes":
+            u = s * np.cos(self.angle) + t * np.sin(self.angle)
+            w = (np.floor(u / p) % 2).astype(np.float32)
+        elif self.kind == "tiles":  # light grout lines between tiles
+            fs, ft = (s / p) % 1.0, (t / p) % 1.0
+            w = ((fs < 0.06) | (ft < 0.06)).astype(np.float32)
+        elif self.kind == "noise":  # smooth value noise on a lattice of `period` m
+            lattice = np.random.default_rng(self.seed).random((64, 64)).astype(np.float32)
+            gs, gt = s / p, t / p
+            i0, j0 = np.floor(gs).astype(np.int64), np.floor(gt).astype(np.int64)
+            fs, ft = gs - i0, gt - j0
+            L = lambda i, j: lattice[i % 64, j % 64]  # noqa: E731
+            w = (L(i0, j0) * (1 - fs) + L(i0 + 1, j0) * fs) * (1 - ft) + (L(i0, j0 + 1) * (1 - fs) + L(i0 + 1, j0 + 1) * fs) * ft
+        elif self.kind == "photo":
+            img = _skimage(self.photo)
+            h, w_ = img.shape[:2]
+            scale = max(h, w_) / p  # the image spans `period` metres
+            rgb = img[(t * scale).astype(np.int64) % h, (s * scale).astype(np.int64) % w_]
+            return rgb * (0.5 + c0)  # tinted
+        else:
+            raise ValueError(self.kind)
+        return c0 * (1 - w[..., None]) + c1 * w[..., None]
+
+
+KINDS = ("solid", "checker", "stripes", "tiles", "noise", "photo")
+
+
+def sample_texture(rng: np.random.Generator) -> Texture:
+    colors = rng.uniform(0.05, 0.95, (2, 3))
+    if rng.random() < 0.5:  # often muted, like real rooms
+        colors = 0.5 * colors + 0.5 * colors.mean(axis=1, keepdims=True)
+    return Texture(
+        kind=KINDS[rng.integers(len(KINDS))],
+        colors=tuple(map(tuple, colors.astype(float))),
+        period=float(np.exp(rng.uniform(np.log(0.1), np.log(2.0)))),
+        angle=float(rng.uniform(0, np.pi)),
+        photo=TEXTURES[rng.integers(len(TEXTURES))],
+        seed=int(rng.integers(2**31)),
+    )
+
+
+# ----------------------------------------------------------------------------- rooms
+
+
+@dataclasses.dataclass(frozen=True)
+class RoomLook:
+    """A room's box [x0, x1] x [y0, y1] x [0, height] (world metres) and its six textures
+    (floor, ceiling, wall x0, wall x1, wall y0, wall y1)."""
+
+    bounds: tuple[float, float, float, float]
+    height: float
+    textures: tuple[Texture, ...]
+
+
+def sample_room(rng: np.random.Generator, bounds, height: float | None = None) -> RoomLook:
+    h = float(rng.uniform(2.2, 4.0)) if height is None else float(height)
+    return RoomLook(tuple(float(b) for b in bounds), h, tuple(sample_texture(rng) for _ in range(6)))
+
+
+def room_image(room: RoomLook, light: Light, K: np.ndarray, width: int, height: int, observer_xypsi, camera_height: float):
+    """The room seen by the observer's camera: (rgb (H, W, 3) float32 in [0, 1], depth (H, W) metres).
+
+    Depth is along the optical axis, as the renderer's. The camera must be inside the room.
+    """
+    x0, x1, y0, y1 = room.bounds
+    ox, oy, opsi = (float(v) for v in observer_xypsi)
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    ray_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # z = 1
+    c, s = np.cos(opsi), np.sin(opsi)
+    R_world_robot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    d = ray_cam @ (R_world_robot @ R_ROBOT_OPTICAL).T  # world direction, optical depth 1 per unit t
+    o = np.array([ox, oy, camera_height])
+    # Exit distance through each face of the box (the camera is inside): t = (plane - o) / d.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cand = np.stack([
+            np.where(d[..., 2] < 0, (0.0 - o[2]) / d[..., 2], np.inf),  # floor
+            np.where(d[..., 2] > 0, (room.height - o[2]) / d[..., 2], np.inf),  # ceiling
+            np.where(d[..., 0] < 0, (x0 - o[0]) / d[..., 0], np.inf),
+            np.where(d[..., 0] > 0, (x1 - o[0]) / d[..., 0], np.inf),
+            np.where(d[..., 1] < 0, (y0 - o[1]) / d[..., 1], np.inf),
+            np.where(d[..., 1] > 0, (y1 - o[1]) / d[..., 1], np.inf),
+        ])
+    face = np.argmin(cand, axis=0)
+    t = np.take_along_axis(cand, face[None], 0)[0]
+    p = o + d * t[..., None]
+    normals = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], np.float64)
+    # Surface coordinates of each face, in metres.
+    st = [(p[..., 0], p[..., 1]), (p[..., 0], p[..., 1]), (p[..., 1], p[..., 2]), (p[..., 1], p[..., 2]),
+          (p[..., 0], p[..., 2]), (p[..., 0], p[..., 2])]
+    rgb = np.zeros((height, width, 3), np.float32)
+    ldir = np.asarray(light.direction)
+    for f in range(6):
+        sel = face == f
+        if not np.any(sel):
+            continue
+        shade = light.ambient + light.diffuse * max(0.0, float(normals[f] @ ldir))
+        rgb[sel] = room.textures[f](st[f][0][sel], st[f][1][sel]) * shade
+    return np.clip(rgb, 0.0, 1.0), t.astype(np.float32)  # t is the optical depth (ray z = 1)

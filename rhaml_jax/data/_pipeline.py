@@ -1,0 +1,127 @@
+"""Training input: batches as a pure function of (seed, step), from disk or generated on the fly.
+
+`make_batch_fn(source, batch, seed)` returns `batch_fn(step) -> Batch`; the same step always
+gives the same batch, so a resumed run sees exactly the data an uninterrupted run would.
+A background thread prepares the next steps while the current one trains.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+from pathlib import Path
+from typing import NamedTuple, Protocol
+
+import cv2
+import jax
+import numpy as np
+
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.data._augment import AugmentConfig, augment
+from rhaml_jax.data._bop import read_bop, load_rgb
+from rhaml_jax.data._synth import SynthConfig, training_sample
+from rhaml_jax.errors import RhamlError
+
+
+class Batch(NamedTuple):
+    images: np.ndarray  # (B, H, W, 3) float32 in [0, 1]
+    observed: np.ndarray  # (B,) float32, 1 when the robot is in view
+    pose: np.ndarray  # (B, 3) float32 (x, y, psi) in the observer's frame, zeros for negatives
+
+
+class Source(Protocol):
+    """Examples by index: `len(source)` of them (or unbounded: None), each (image, observed, pose)."""
+
+    size: int | None
+
+    def example(self, index: int) -> tuple[np.ndarray, float, np.ndarray]: ...
+
+
+@dataclasses.dataclass
+class OnTheFly:
+    """Renders example `index` of the infinite synthetic stream `seed` at width x height."""
+
+    robot: str
+    width: int
+    height: int
+    seed: int = 0
+    cfg: SynthConfig = SynthConfig()
+    max_faces: int | None = None
+    size: int | None = None
+
+    def __post_init__(self):
+        from rhaml_jax.render import as_mesh
+        from rhaml_jax.robots import load_robot
+
+        self._mesh = as_mesh(load_robot(self.robot, self.max_faces))
+        self._camera = DEFAULT_CAMERA.resized(self.width, self.height)
+
+    def example(self, index: int):
+        s = training_sample(self._mesh, self._camera, self.seed, index, cfg=self.cfg)
+        return s.rgb, float(s.observed), s.xypsi.astype(np.float32)
+
+
+@dataclasses.dataclass
+class FromDisk:
+    """Examples of a BOP data set's `split`, resized to width x height (any image size on disk)."""
+
+    root: Path
+    width: int
+    height: int
+    split: str | None = "train"
+
+    def __post_init__(self):
+        self._frames = read_bop(self.root, self.split)
+        self.size = len(self._frames)
+        if self.size == 0:
+            raise RhamlError(f"{self.root}: split {self.split!r} has no images")
+
+    def example(self, index: int):
+        f = self._frames[index]
+        img = load_rgb(f.rgb)
+        if img.shape[:2] != (self.height, self.width):
+            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        pose = f.xypsi
+        return img, float(f.observed), (np.zeros(3, np.float32) if pose is None else pose.astype(np.float32))
+
+
+def indices_for_step(step: int, batch: int, size: int | None, seed: int) -> np.ndarray:
+    """Example indices of a step: a fresh permutation per epoch of a finite source."""
+    flat = np.arange(step * batch, (step + 1) * batch)
+    if size is None:
+        return flat
+    epoch, pos = flat // size, flat % size
+    out = np.empty(batch, np.int64)
+    for e in np.unique(epoch):
+        perm = np.random.default_rng(np.random.SeedSequence([seed, int(e)])).permutation(size)
+        out[epoch == e] = perm[pos[epoch == e]]
+    return out
+
+
+def make_batch_fn(source: Source, batch: int, seed: int = 0, augment_cfg: AugmentConfig | None = AugmentConfig(),
+                  prefetch: int = 2, workers: int = 1):
+    """batch_fn(step) -> Batch, deterministic in (seed, step); prefetches the next steps."""
+    if batch <= 0:
+        raise RhamlError(f"--batch must be positive, got {batch}")
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=max(1, workers))
+    pending: dict[int, concurrent.futures.Future] = {}
+
+    def build(step: int) -> Batch:
+        idx = indices_for_step(step, batch, source.size, seed)
+        ex = [source.example(int(i)) for i in idx]
+        images = np.stack([e[0] for e in ex]).astype(np.float32) / 255.0
+        if augment_cfg is not None:
+            key = jax.random.fold_in(jax.random.PRNGKey(seed), step)
+            images = np.asarray(augment(key, images, augment_cfg))
+        return Batch(images, np.array([e[1] for e in ex], np.float32), np.stack([e[2] for e in ex]).astype(np.float32))
+
+    def batch_fn(step: int) -> Batch:
+        fut = pending.pop(step, None)
+        for s in range(step + 1, step + 1 + prefetch):
+            if s not in pending:
+                pending[s] = pool.submit(build, s)
+        for s in [s for s in pending if s < step]:
+            pending.pop(s).cancel()
+        return fut.result() if fut is not None else build(step)
+
+    return batch_fn

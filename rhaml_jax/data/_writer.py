@@ -1,0 +1,212 @@
+"""Writing whole data sets: training sets and scenarios, in parallel processes, as BOP + TUM."""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from rhaml_jax.camera import Camera, T_cam_robot
+from rhaml_jax.data import _trajectories as traj
+from rhaml_jax.data._backdrop import sample_light, sample_room
+from rhaml_jax.data._bop import SceneWriter, write_dataset_header
+from rhaml_jax.data._synth import SynthConfig, sample_rng, scenario_frame, training_sample
+from rhaml_jax.data._tum import write_tum
+from rhaml_jax.frames import se3_from_xypsi
+
+SCENE_SIZE = 1000  # images per BOP scene folder
+SPLITS = ("train", "val", "test")
+
+
+def split_of(index: int, val_every: int = 20) -> str:
+    """Deterministic split of global image `index`: 1 in val_every each to val and test."""
+    r = index % val_every
+    return "val" if r == 0 else "test" if r == 1 else "train"
+
+
+def layout(num: int, negatives: int, val_every: int = 20) -> dict[str, list[int]]:
+    """Global image indices of each split, in order (positives 0..num-1, then negatives)."""
+    out = {s: [] for s in SPLITS}
+    for i in range(num + negatives):
+        out[split_of(i, val_every)].append(i)
+    return out
+
+
+# Worker-side state: each process loads the model and compiles the renderer once.
+_WORKER: dict = {}
+
+
+def _worker_init(robot: str, max_faces: int | None):
+    from rhaml_jax.render import as_mesh
+    from rhaml_jax.robots import load_robot
+
+    _WORKER["mesh"] = as_mesh(load_robot(robot, max_faces))
+
+
+def _mesh(robot, max_faces):
+    if "mesh" not in _WORKER:
+        _worker_init(robot, max_faces)
+    return _WORKER["mesh"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """A chunk of images to render and write (picklable)."""
+
+    robot: str
+    max_faces: int | None
+    camera: Camera
+    seed: int
+    num: int  # positives come first: global index < num
+    items: tuple[tuple[int, str, int], ...]  # (global index, scene folder, im_id)
+    cfg: SynthConfig
+
+
+def _run_training_job(job: Job) -> list[tuple[str, int, dict]]:
+    mesh = _mesh(job.robot, job.max_faces)
+    records = []
+    for index, folder, im_id in job.items:
+        s = training_sample(mesh, job.camera, job.seed, index, negative=index >= job.num, cfg=job.cfg)
+        T_w2c = np.asarray(T_cam_robot(s.camera_height).as_matrix(), np.float64)
+        T_m2c = T_w2c @ np.asarray(se3_from_xypsi(s.xypsi).as_matrix(), np.float64) if s.observed else None
+        w = SceneWriter(Path(folder), job.camera)
+        w.add(im_id, s.rgb, T_w2c, T_m2c, s.mask_visib, s.mask_all)
+        records.append((folder, im_id, {"cam": w.cams[str(im_id)], "gt": w.gts[str(im_id)], "info": w.infos[str(im_id)]}))
+    return records
+
+
+def _pool(workers: int, robot: str, max_faces):
+    ctx = multiprocessing.get_context("spawn")  # JAX is not fork-safe
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(robot, max_faces))
+
+
+def _progress(total: int, label: str):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    p = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
+    return p, p.add_task(label, total=total)
+
+
+def _finish_scenes(records, camera):
+    """Writes each scene's JSON files from the workers' per-image records."""
+    scenes: dict[str, SceneWriter] = {}
+    for folder, im_id, rec in records:
+        w = scenes.get(folder)
+        if w is None:
+            w = scenes[folder] = SceneWriter(Path(folder), camera)
+        w.cams[str(im_id)], w.gts[str(im_id)], w.infos[str(im_id)] = rec["cam"], rec["gt"], rec["info"]
+    for w in scenes.values():
+        w.close()
+
+
+def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: int, negatives: int, workers: int = 2,
+                       chunk: int = 25, max_faces: int | None = None, cfg: SynthConfig = SynthConfig()) -> dict:
+    """A BOP training set of `num` robot images and `negatives` background-only images."""
+    from rhaml_jax.robots import load_robot
+
+    out = Path(out)
+    write_dataset_header(out, load_robot(robot, max_faces), camera)
+    items = []
+    for split, indices in layout(num, negatives).items():
+        for k, index in enumerate(indices):
+            items.append((index, str(out / split / f"{k // SCENE_SIZE:06d}"), k % SCENE_SIZE))
+    jobs = [Job(robot, max_faces, camera, seed, num, tuple(items[i : i + chunk]), cfg) for i in range(0, len(items), chunk)]
+    records = _run(jobs, _run_training_job, workers, robot, max_faces, len(items), "rendering")
+    _finish_scenes(records, camera)
+    return {"images": len(items), "positives": num, "negatives": negatives, "out": str(out)}
+
+
+def _run(jobs, fn, workers, robot, max_faces, total, label):
+    records = []
+    progress, task = _progress(total, label)
+    with progress:
+        if workers <= 1:
+            for job in jobs:
+                r = fn(job)
+                records += r
+                progress.advance(task, len(r))
+        else:
+            with _pool(workers, robot, max_faces) as pool:
+                for r in pool.map(fn, jobs):
+                    records += r
+                    progress.advance(task, len(r))
+    return records
+
+
+# ----------------------------------------------------------------------------- scenarios
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioJob:
+    robot: str
+    max_faces: int | None
+    camera: Camera
+    seed: int
+    room_bounds: tuple[float, float, float, float]
+    frames: tuple[tuple[int, str, tuple, tuple], ...]  # (im_id, folder, observer pose, observed pose) world frame
+
+
+def _scene_look(seed: int, bounds):
+    rng = sample_rng(seed, 2**32 - 1)  # the room and light of a scenario: one draw for all frames
+    return sample_room(rng, bounds, height=2.8), sample_light(rng)
+
+
+def _run_scenario_job(job: ScenarioJob):
+    mesh = _mesh(job.robot, job.max_faces)
+    room, light = _scene_look(job.seed, job.room_bounds)
+    records = []
+    for im_id, folder, obs, tgt in job.frames:
+        rgb, visib, rel, seen = scenario_frame(mesh, job.camera, room, light, obs, tgt)
+        h = 0.30
+        T_w2c = np.asarray(T_cam_robot(h).as_matrix(), np.float64)
+        T_m2c = T_w2c @ np.asarray(se3_from_xypsi(rel).as_matrix(), np.float64) if seen else None
+        w = SceneWriter(Path(folder), job.camera)
+        w.add(im_id, rgb, T_w2c, T_m2c, visib, visib)
+        records.append((folder, im_id, {"cam": w.cams[str(im_id)], "gt": w.gts[str(im_id)], "info": w.infos[str(im_id)]}))
+    return records
+
+
+def scenario_poses(name: str, frames: int, seed: int):
+    """World-frame truth of (observer, observed) robots; returns list of scenes:
+    [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odo, observed odo)] and the room bounds."""
+    if name in ("circle", "sine"):
+        target = traj.circle(frames) if name == "circle" else traj.sine(frames)
+        observer = np.zeros_like(target)
+        odo_target = traj.noisy_odometry(target, seed=seed * 2 + 1)
+        return [(0, observer, target, observer.copy(), odo_target)], (-1.0, 9.0, -4.0, 4.0)
+    if name == "rendezvous":
+        room = traj.Room()
+        a, b = traj.rendezvous(frames, seed, room)
+        oa, ob = traj.noisy_odometry(a, seed * 2 + 1), traj.noisy_odometry(b, seed * 2 + 2)
+        return [(0, a, b, oa, ob), (1, b, a, ob, oa)], (room.x0, room.x1, room.y0, room.y1)
+    from rhaml_jax.errors import RhamlError
+
+    raise RhamlError(f"--scenario: unknown scenario {name!r} (expected circle, sine or rendezvous)")
+
+
+def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
+                   chunk: int = 25, max_faces: int | None = None) -> dict:
+    """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4)."""
+    from rhaml_jax.robots import load_robot
+
+    out = Path(out)
+    write_dataset_header(out, load_robot(robot, max_faces), camera)
+    scenes, bounds = scenario_poses(name, frames, seed)
+    items = []
+    for scene_id, observer, observed, odo_observer, odo_observed in scenes:
+        folder = out / "test" / f"{scene_id:06d}"
+        folder.mkdir(parents=True, exist_ok=True)
+        # Static observer scenarios: the world is the observer's frame (identity on every line).
+        write_tum(folder / "observer_groundtruth.txt", observer)
+        write_tum(folder / "observed_groundtruth.txt", observed)
+        write_tum(folder / "observer_odometry.txt", odo_observer)
+        write_tum(folder / "observed_odometry.txt", odo_observed)
+        items += [(i, str(folder), tuple(observer[i]), tuple(observed[i])) for i in range(frames)]
+    jobs = [ScenarioJob(robot, max_faces, camera, seed, bounds, tuple(items[i : i + chunk])) for i in range(0, len(items), chunk)]
+    records = _run(jobs, _run_scenario_job, workers, robot, max_faces, len(items), f"rendering {name}")
+    _finish_scenes(records, camera)
+    seen = sum(1 for *_, r in records if r["gt"])
+    return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
