@@ -22,6 +22,8 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "robots"
 class Args:
     views: int = 50
     budgets: tuple[int, ...] = (500, 1000, 2000, 5000, 10000)
+    quadric: bool = False
+    """Also measure whole-mesh quadric decimation (fast-simplification) at the same budgets."""
 
 
 def main(args: Args) -> None:
@@ -42,6 +44,19 @@ def main(args: Args) -> None:
             dt = time.perf_counter() - t
             iou = silhouette_iou(full, simp, args.views)
             print(f"| {label} | {len(full.faces)} | {budget} | {len(simp.faces)} | {iou.min():.4f} | {iou.mean():.4f} | {dt:.2f} |")
+            if args.quadric:
+                import fast_simplification
+                import numpy as np
+
+                from rhaml_jax.robots import RobotModel
+
+                t = time.perf_counter()
+                v, f = fast_simplification.simplify(full.vertices.astype(np.float64), full.faces.astype(np.int64),
+                                                    target_reduction=1.0 - budget / len(full.faces))
+                dt = time.perf_counter() - t
+                q = RobotModel.from_parts("quadric", [("all", v, f, (0.5, 0.5, 0.5))])
+                iou = silhouette_iou(full, q, args.views)
+                print(f"| {label} (quadric) | {len(full.faces)} | {budget} | {len(q.faces)} | {iou.min():.4f} | {iou.mean():.4f} | {dt:.2f} |")
 
 
 if __name__ == "__main__":

@@ -134,7 +134,15 @@ def test_info_cli_and_errors(tmp_path):
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert {"name", "vertices", "faces", "extents_m", "min_z"} <= set(d) and d["min_z"] == 0.0
-    for bad in (str(tmp_path / "none.stl"), _write(tmp_path / "x.foo", "")):
+    missing_mesh = '<robot name="r"><link name="a"><visual><geometry><mesh filename="gone.stl"/></geometry></visual></link></robot>'
+    cases = {
+        str(tmp_path / "none.stl"): "none.stl",  # missing file
+        _write(tmp_path / "x.foo", ""): "unknown robot file extension",
+        _write(tmp_path / "r.urdf", missing_mesh): "gone.stl",
+        _write(tmp_path / "empty.obj", "# nothing\n"): "empty",
+        _write(tmp_path / "nan.obj", "v 0 0 0\nv 1 0 inf\nv 0 1 0\nf 1 2 3\n"): "non-finite",
+    }
+    for bad, culprit in cases.items():
         r = _info("--robot", bad)
-        assert r.returncode == 2 and "Traceback" not in r.stderr
-        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("error: ")
+        assert r.returncode == 2 and "Traceback" not in r.stderr, (bad, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("error: ") and culprit in r.stderr, r.stderr
