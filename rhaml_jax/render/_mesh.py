@@ -25,13 +25,14 @@ class Mesh(NamedTuple):
 
 
 def as_mesh(model, dtype=jnp.float32) -> Mesh:
-    """A Mesh from a Mesh, a RobotModel, a trimesh.Trimesh or a (vertices, faces) pair.
+    """A Mesh (dtype `dtype`) from a RobotModel, a trimesh.Trimesh or a (vertices, faces[, colors])
+    tuple; a Mesh is returned as it is (it was checked when made).
 
     Raises RhamlError naming the field at fault (empty model, bad shape, bad index, NaN).
     """
     if isinstance(model, Mesh):
-        v, f, c = model
-    elif isinstance(model, tuple) and len(model) in (2, 3):
+        return model
+    if isinstance(model, tuple) and len(model) in (2, 3):
         v, f = model[0], model[1]
         c = model[2] if len(model) == 3 else None
     elif hasattr(model, "vertices") and hasattr(model, "faces"):

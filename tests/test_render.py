@@ -1,0 +1,259 @@
+"""Renderer: hard rasterizer against trimesh ray casting, soft silhouette limits, gradients
+(custom VJP vs XLA autodiff vs central finite differences in float64), robustness, bad input."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+import trimesh
+
+from rhaml_jax import render as R
+from rhaml_jax.camera import Camera, T_cam_robot
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.robots import load_robot
+from tests._render_ref import iou, random_views, raycast
+from tests.conftest import shared_path
+
+CAM = Camera(200.0, 200.0, 160.0, 120.0, 320, 240)  # the default camera's view at half size
+TINY = Camera(40.0, 40.0, 32.0, 24.0, 64, 48)  # the same view at 64 x 48, for many poses
+
+
+@functools.lru_cache(maxsize=None)
+def builtin() -> R.Mesh:
+    return R.as_mesh(load_robot("pioneer3dx"))
+
+
+def numpy_cam(T: jaxlie.SE3, vertices) -> np.ndarray:
+    M = np.asarray(T.as_matrix(), np.float64)
+    return np.asarray(vertices, np.float64) @ M[:3, :3].T + M[:3, 3]
+
+
+def view(x, y, psi, h=0.30, dtype=jnp.float32) -> jaxlie.SE3:
+    T_obs = jaxlie.SE3.from_rotation_and_translation(
+        jaxlie.SO3.from_z_radians(jnp.asarray(psi, dtype)), jnp.asarray([x, y, 0.0], dtype))
+    T = T_cam_robot(h) @ T_obs
+    return jaxlie.SE3(T.wxyz_xyz.astype(dtype))
+
+
+def crop_box(mesh, T, cam=CAM, grow=1.3):
+    """Square box around the projected model (as the refiner's zoom-in does)."""
+    uv = numpy_cam(T, mesh.vertices) @ np.asarray(cam.K).T
+    uv = uv[:, :2] / uv[:, 2:3]
+    c, half = (uv.min(0) + uv.max(0)) / 2, grow * (uv.max(0) - uv.min(0)).max() / 2
+    return jnp.asarray([c[0] - half, c[1] - half, c[0] + half, c[1] + half], jnp.float32)
+
+
+# ---------------------------------------------------------------- hard rasterizer vs ray casting
+
+
+def _against_raycast(model):
+    mesh = R.as_mesh(model)
+    Ts = random_views(50, seed=3)
+    out = R.render(mesh, Ts, CAM.K, CAM.width, CAM.height)
+    assert int(out.pairs.max()) > 0
+    ious, errs = [], []
+    for i in range(50):
+        ref_mask, ref_depth = raycast(numpy_cam(jaxlie.SE3(Ts.wxyz_xyz[i]), mesh.vertices), mesh.faces, CAM.K,
+                                      CAM.width, CAM.height)
+        mask = np.asarray(out.mask[i])
+        ious.append(iou(mask, ref_mask))
+        both = mask & ref_mask
+        errs.append(np.abs(np.asarray(out.depth[i])[both] - ref_depth[both]))
+    assert min(ious) >= 0.98, f"IoU per view: min {min(ious):.4f}, mean {np.mean(ious):.4f}"
+    assert np.median(np.concatenate(errs)) < 1e-3
+    rgb = np.asarray(out.rgb)
+    assert np.all(np.isfinite(rgb)) and rgb.min() >= 0 and rgb.max() <= 1
+    assert np.all(rgb[~np.asarray(out.mask)] == 0) and np.all(np.asarray(out.depth)[~np.asarray(out.mask)] == 0)
+
+
+def test_hard_mask_and_depth_match_raycasting_builtin():
+    _against_raycast(load_robot("pioneer3dx"))
+
+
+def test_hard_mask_and_depth_match_raycasting_urdf():
+    _against_raycast(load_robot(str(shared_path("robots", "pioneer3dx", "urdf", "pioneer3dx.urdf"))))
+
+
+def test_model_partly_behind_the_camera_is_clipped_not_lost():
+    box = trimesh.creation.box(extents=(0.6, 0.4, 3.0))
+    box.apply_translation((0.25, 0.1, 0.5))  # from z = -1 to z = 2: straddles the camera plane
+    T = jaxlie.SE3.identity()
+    out = R.render((box.vertices, box.faces), T, TINY.K, TINY.width, TINY.height)
+    ref_mask, ref_depth = raycast(np.asarray(box.vertices), box.faces, TINY.K, TINY.width, TINY.height)
+    mask = np.asarray(out.mask[...])
+    assert ref_mask.sum() > 200 and iou(mask, ref_mask) >= 0.98
+    both = mask & ref_mask
+    assert np.median(np.abs(np.asarray(out.depth)[both] - ref_depth[both])) < 1e-3
+
+
+def test_lambertian_shading_of_a_square_facing_the_camera():
+    v = np.array([[-1, -1, 2], [1, -1, 2], [1, 1, 2], [-1, 1, 2]], np.float32)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    colors = np.array([[1.0, 0.5, 0.0], [1.0, 0.5, 0.0]], np.float32)
+    out = R.render((v, f, colors), jaxlie.SE3.identity(), TINY.K, TINY.width, TINY.height, ambient=0.2, diffuse=0.7)
+    light = np.asarray(R.DEFAULT_LIGHT) / np.linalg.norm(R.DEFAULT_LIGHT)
+    shade = 0.2 + 0.7 * max(0.0, -light[2])  # normal (0, 0, -1), towards the camera
+    np.testing.assert_allclose(np.asarray(out.rgb)[24, 32], [shade, 0.5 * shade, 0.0], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(out.depth)[out.mask], 2.0, rtol=1e-5)
+
+
+def test_crop_equals_the_slice_of_the_full_image():
+    mesh, T = builtin(), view(1.2, 0.1, 0.4)
+    full = R.render(mesh, T, TINY.K, TINY.width, TINY.height)
+    x0, y0 = 20, 10  # crop box with edges on pixel borders, at the same scale
+    box = jnp.asarray([x0 - 0.5, y0 - 0.5, x0 + 31.5, y0 + 23.5])
+    crop = R.render(mesh, T, TINY.K, 32, 24, box=box)
+    np.testing.assert_array_equal(np.asarray(crop.mask), np.asarray(full.mask)[y0:y0 + 24, x0:x0 + 32])
+    np.testing.assert_allclose(np.asarray(crop.depth), np.asarray(full.depth)[y0:y0 + 24, x0:x0 + 32], atol=1e-5)
+    # and a batch of poses and boxes gives what the poses give one by one
+    Ts = jaxlie.SE3(jnp.stack([T.wxyz_xyz, view(2.0, -0.3, 2.0).wxyz_xyz]))
+    both = R.render(mesh, Ts, TINY.K, 32, 24, box=box)
+    np.testing.assert_array_equal(np.asarray(both.mask[0]), np.asarray(crop.mask))
+
+
+# ---------------------------------------------------------------- soft silhouette
+
+
+def test_soft_silhouette_tends_to_the_hard_one():
+    mesh, T = builtin(), view(3.0, 0.4, 0.9)
+    box = crop_box(mesh, T)
+    hard = np.asarray(R.render(mesh, T, CAM.K, 48, 48, box=box).mask, np.float32)
+    errs = [float(np.abs(np.asarray(R.silhouette(mesh, T, CAM.K, 48, 48, box=box, sharpness=k)) - hard).mean())
+            for k in (0.5, 2.0, 8.0, 32.0, 1e4)]
+    assert all(a > b for a, b in zip(errs, errs[1:])), errs
+    assert errs[-1] < 1e-3, errs
+
+
+def test_binning_matches_all_pairs():
+    mesh = builtin()
+    Ts = jaxlie.SE3(jnp.stack([view(2.5, 0.2, 0.3).wxyz_xyz, view(0.8, 0.3, 2.0).wxyz_xyz]))
+    box = jnp.asarray([100.0, 80.0, 220.0, 200.0])
+    a = R.silhouette(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=1.0)
+    b = R.silhouette_naive(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=1.0)
+    assert float(a.max()) > 0.9
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=2e-5)
+
+
+def _loss_fn(mesh, K, box, target, sharpness, config):
+    def loss(delta, T0):
+        T = T0 @ jaxlie.SE3.exp(delta)
+        sil = R.silhouette(mesh, T, K, 32, 32, box=box, sharpness=sharpness, config=config)
+        return jnp.sum((sil - target) ** 2)
+
+    return loss
+
+
+def test_custom_vjp_matches_autodiff():
+    mesh, T0 = builtin(), view(2.0, 0.2, 0.6)
+    box = crop_box(mesh, T0)
+    target = R.silhouette(mesh, view(2.05, 0.15, 0.7), CAM.K, 32, 32, box=box)
+    zero = jnp.zeros(6)
+    g_custom = jax.jit(jax.grad(_loss_fn(mesh, CAM.K, box, target, 2.0, R.RenderConfig())))(zero, T0)
+    g_auto = jax.jit(jax.grad(_loss_fn(mesh, CAM.K, box, target, 2.0, R.RenderConfig(vjp="autodiff"))))(zero, T0)
+    assert float(jnp.linalg.norm(g_custom)) > 0
+    np.testing.assert_allclose(np.asarray(g_custom), np.asarray(g_auto), rtol=1e-3,
+                               atol=1e-4 * float(jnp.abs(g_auto).max()))
+
+
+def test_pose_gradient_matches_central_finite_differences_float64():
+    with jax.enable_x64(True):
+        m = load_robot("pioneer3dx")
+        mesh = R.as_mesh(m, dtype=jnp.float64)
+        K = jnp.asarray(CAM.K, jnp.float64)
+        for x, y, psi in [(2.0, 0.2, 0.6), (4.5, -0.8, 2.5), (1.2, 0.1, -1.3)]:
+            T0 = view(x, y, psi, dtype=jnp.float64)
+            box = crop_box(mesh, T0).astype(jnp.float64)
+            target = R.silhouette(mesh, view(x + 0.05, y - 0.04, psi + 0.1, dtype=jnp.float64), K, 32, 32, box=box)
+            loss = jax.jit(_loss_fn(mesh, K, box, target, 1.0, R.RenderConfig()))
+            g = np.asarray(jax.jit(jax.grad(loss))(jnp.zeros(6), T0))
+            h = 1e-6
+            fd = np.array([(loss(h * e, T0) - loss(-h * e, T0)) / (2 * h) for e in np.eye(6)])
+            rel = np.linalg.norm(g - fd) / np.linalg.norm(fd)
+            assert rel <= 1e-2, (g, fd, rel)
+
+
+def _degenerate_model():
+    m = load_robot("pioneer3dx")
+    v = np.concatenate([m.vertices, [[0.1, 0.0, 0.1], [0.2, 0.0, 0.1], [0.3, 0.0, 0.1]]]).astype(np.float32)
+    n = len(m.vertices)
+    extra = np.array([[n, n, n + 1], [n, n + 1, n + 2], [n + 2, n + 2, n + 2]])  # zero-area faces
+    return (v, np.concatenate([m.faces, extra]))
+
+
+def _hard_poses(n, seed):
+    """Random rotations and positions around the camera: behind it, straddling it, partly out of
+    view, far; plus views with the camera in the plane of the top plate (edge-on faces)."""
+    rng = np.random.default_rng(seed)
+    key = jax.random.PRNGKey(seed)
+    R_ = jaxlie.SO3.sample_uniform(key, batch_axes=(n,))
+    t = np.stack([rng.uniform(-2, 2, n), rng.uniform(-1, 1, n), rng.uniform(-1.5, 6, n)], 1)
+    T = jaxlie.SE3.from_rotation_and_translation(R_, jnp.asarray(t, jnp.float32))
+    k = n // 10  # edge-on: camera at the top plate's height (0.237 m)
+    edge = T_cam_robot(0.237) @ jaxlie.SE3.from_rotation_and_translation(
+        jaxlie.SO3.from_z_radians(jnp.asarray(rng.uniform(-np.pi, np.pi, k), jnp.float32)),
+        jnp.asarray(np.stack([rng.uniform(0.3, 3, k), rng.uniform(-1, 1, k), np.zeros(k)], 1), jnp.float32))
+    return jaxlie.SE3(jnp.concatenate([edge.wxyz_xyz, T.wxyz_xyz[k:]]))
+
+
+def test_no_nan_or_inf_over_1000_hard_poses():
+    mesh = R.as_mesh(_degenerate_model())
+    Ts = _hard_poses(1000, seed=7)
+    target = jnp.zeros((TINY.height, TINY.width)).at[10:30, 20:40].set(1.0)
+
+    def loss(params):
+        sil = R.silhouette(mesh, jaxlie.SE3(params), TINY.K, TINY.width, TINY.height, sharpness=2.0)
+        return jnp.sum((sil - target) ** 2), sil
+
+    (vals, sils), grads = jax.jit(lambda p: jax.lax.map(jax.value_and_grad(loss, has_aux=True), p))(Ts.wxyz_xyz)
+    assert np.all(np.isfinite(np.asarray(vals))) and np.all(np.isfinite(np.asarray(grads)))
+    sils = np.asarray(sils)
+    assert np.all(np.isfinite(sils)) and sils.min() >= 0 and sils.max() <= 1
+    assert (sils.max(axis=(1, 2)) > 0.5).sum() > 100  # many views do see the model
+    out = R.render(mesh, Ts, TINY.K, TINY.width, TINY.height)
+    for a in (out.rgb, out.depth):
+        assert np.all(np.isfinite(np.asarray(a)))
+    assert np.asarray(out.depth).min() >= 0
+
+
+# ---------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    "case, pattern",
+    [
+        ("nan_pose", "T_cam_model"),
+        ("empty_model", "empty"),
+        ("zero_crop", "box"),
+        ("bad_sharpness", "sharpness"),
+        ("bad_size", "width"),
+        ("bad_K", "K"),
+        ("not_se3", "T_cam_model"),
+    ],
+)
+def test_bad_input_raises_a_clear_error(case, pattern):
+    mesh, T, K, box, k, w = builtin(), view(2.0, 0.0, 0.0), CAM.K, None, 2.0, 32
+    if case == "nan_pose":
+        T = jaxlie.SE3(T.wxyz_xyz.at[4].set(jnp.nan))
+    elif case == "empty_model":
+        mesh = (np.zeros((0, 3)), np.zeros((0, 3), int))
+    elif case == "zero_crop":
+        box = jnp.asarray([10.0, 10.0, 10.0, 50.0])
+    elif case == "bad_sharpness":
+        k = -1.0
+    elif case == "bad_size":
+        w = 0
+    elif case == "bad_K":
+        K = np.zeros((3, 3))
+    elif case == "not_se3":
+        T = np.eye(4)
+    for fn in (lambda: R.silhouette(mesh, T, K, w, 32, box=box, sharpness=k),
+               lambda: R.render(mesh, T, K, w, 32, box=box) if case != "bad_sharpness" else R.silhouette(
+                   mesh, T, K, w, 32, box=box, sharpness=k)):
+        with pytest.raises(RhamlError, match=pattern) as info:
+            fn()
+        assert "\n" not in str(info.value)
