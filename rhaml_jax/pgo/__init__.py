@@ -1,0 +1,40 @@
+"""Pose-graph optimisation on SE(2): the paper's Algorithm 1 (RHAML two-robot graphs) and a
+jit-compiled Gauss-Newton / Levenberg-Marquardt solver for any 2D g2o pose graph.
+
+Public API:
+- `PoseGraph`, `SolverConfig`, `SolveResult`: data types.
+- `read_g2o`, `write_g2o`, `parse_g2o`, `format_g2o`: g2o files (VERTEX_SE2 / EDGE_SE2 / FIX).
+- `optimize(graph, config)`: solves with the first (or FIXed) pose held fixed.
+- `graph_cost(graph, poses)`: GTSAM's cost 0.5 sum r^T Lambda r, r = Log(z^-1 x_i^-1 x_j).
+- `chordal_initialization(graph)`: rotations then translations by linear least squares.
+- RHAML (Algorithm 1): `Rendezvous`, `RhamlPGOConfig`, `delete_erroneous_nodes`,
+  `construct_pose_graph`, `calculate_information_matrix`, `global_optimization`, `rhaml_pgo`,
+  `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
+"""
+
+from ._chordal import chordal_initialization
+from ._g2o import format_g2o, parse_g2o, read_g2o, write_g2o
+from ._rhaml_graph import (
+    Rendezvous,
+    RhamlPGOConfig,
+    RhamlPGOResult,
+    calculate_information_matrix,
+    construct_pose_graph,
+    delete_erroneous_nodes,
+    global_optimization,
+    observation_from_xy_yaw_rp,
+    rhaml_pgo,
+    rhaml_pose_graph,
+)
+from ._solver import graph_cost, optimize
+from ._types import PoseGraph, SolverConfig, SolveResult
+from ._validate import validate_graph
+
+__all__ = [
+    "PoseGraph", "SolverConfig", "SolveResult",
+    "read_g2o", "write_g2o", "parse_g2o", "format_g2o", "validate_graph",
+    "optimize", "graph_cost", "chordal_initialization",
+    "Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "delete_erroneous_nodes", "construct_pose_graph",
+    "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pose_graph",
+    "observation_from_xy_yaw_rp",
+]

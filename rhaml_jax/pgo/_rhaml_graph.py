@@ -1,0 +1,260 @@
+"""The paper's Algorithm 1 (RHAML pose-graph optimisation), each step a pure JAX function.
+
+Inputs are K rendezvous in time order (`Rendezvous`). At rendezvous k one robot observes the
+other: T_ref,k is the observed robot's pose in the observer's robot frame (SE(3), from IR).
+The graph has nodes A_0, B_0, A_1, B_1, ..., A_K, B_K (node 2k = A_k, 2k+1 = B_k), in A's
+odometry frame with A_0 held fixed at A's first odometry pose (the gauge), and per rendezvous
+three edges: A's odometry A_{k-1} -> A_k, B's odometry B_{k-1} -> B_k, and the mutual edge
+observer -> observed with measurement T_ref,k (its planar part x, y, yaw).
+
+Shapes stay static under jit: DeleteErroneousNodes moves the kept rendezvous to the front
+(stable) and pads the tail with copies of the last kept one whose mutual edges get zero
+information. The padded nodes then sit exactly on their odometry and add nothing to the cost,
+so the optimum over the kept part is that of the paper's graph with 2(1 + alpha_d + beta_d)
+nodes and 3(alpha_d + beta_d) edges, which `rhaml_pose_graph` returns without padding.
+
+GlobalOptimization minimises the usual sum of squared Mahalanobis errors,
+0.5 sum_e r_e^T Omega_e r_e. The paper's eq. 11 prints the norms ||Omega^(1/2) r||_2 without
+the square; that is taken to be a typo: the squared form is what g2o-style PGO minimises
+and what the information matrices of eqs. 9-10 are for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from ..errors import RhamlError, check_finite, check_shape
+from ._banded import band_layout
+from ._normal_equations import block_structure
+from ._residuals import compose, inverse, poses_to_se2, se2_to_poses
+from ._solver import Problem, _iterate
+from ._types import PoseGraph, SolverConfig
+
+__all__ = ["Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "PoseGraphArrays", "delete_erroneous_nodes",
+           "construct_pose_graph", "calculate_information_matrix", "global_optimization", "rhaml_pgo",
+           "rhaml_pose_graph", "observation_from_xy_yaw_rp"]
+
+
+class Rendezvous(NamedTuple):
+    """K rendezvous in time order (the paper's O_A and O_B together)."""
+
+    odom_a: jax.Array  # (K+1, 3) A's odometry (x, y, psi): start (row 0), then at rendezvous 1..K
+    odom_b: jax.Array  # (K+1, 3) B's odometry, same rows
+    observation: jax.Array  # (K, 7) SE(3) wxyz_xyz: T_ref,k, observed robot in observer's frame
+    a_observes: jax.Array  # (K,) bool: A is the observer (B observed); False: B observes A
+
+
+@dataclasses.dataclass(frozen=True)
+class RhamlPGOConfig:
+    """Algorithm 1's parameters (paper: sigma = 10 deg, kappa = 100, tau = 0.5)."""
+
+    sigma_deg: float = 10.0  # DeleteErroneousNodes: max |roll| and |pitch| of an observation
+    kappa: float = 100.0  # odometry information diag(kappa, kappa, kappa)
+    tau: float = 0.5  # weight of the angle in the mutual information (eq. 10)
+    solver: SolverConfig = SolverConfig(max_iterations=30, linear_solver="banded")
+    robust_mutual_only: bool = True  # a robust kernel (solver.robust) acts on mutual edges only
+
+
+class PoseGraphArrays(NamedTuple):
+    """ConstructPoseGraph's output (static shapes, K rendezvous incl. padding)."""
+
+    poses: jax.Array  # (2K+2, 3) initial (x, y, psi); node 2k = A_k, 2k+1 = B_k
+    edges: jax.Array  # (3K, 2) int32: per rendezvous odom A, odom B, mutual (observer, observed)
+    measurements: jax.Array  # (3K, 3)
+    roll_pitch: jax.Array  # (K, 2) the mutual observations' roll and pitch (rad)
+    valid: jax.Array  # (K,) bool: a kept rendezvous (False: padding)
+    a_observes: jax.Array  # (K,) bool
+
+
+class RhamlPGOResult(NamedTuple):
+    poses_a: jax.Array  # (K+1, 3) optimised A_0..A_K (kept rendezvous first, then padding)
+    poses_b: jax.Array  # (K+1, 3) optimised B_0..B_K in A's odometry frame
+    a0_T_b0: jax.Array  # (3,) B_0 in A_0's frame (x, y, psi): A_0^-1 B_0
+    odom_a_T_odom_b: jax.Array  # (3,) B's odometry frame in A's odometry frame
+    num_kept: jax.Array  # () int32: alpha_d + beta_d
+    keep: jax.Array  # (K,) bool: DeleteErroneousNodes' verdict, input order
+    initial_cost: jax.Array  # ()
+    final_cost: jax.Array  # ()
+    iterations: jax.Array  # () int32
+    converged: jax.Array  # () bool
+
+
+def observation_from_xy_yaw_rp(xy_yaw: jax.Array, roll_pitch: jax.Array | None = None,
+                               z: jax.Array | None = None) -> jax.Array:
+    """(K, 3) planar poses (+ optional (K, 2) roll, pitch and (K,) z) -> (K, 7) SE(3) wxyz_xyz."""
+    xy_yaw = jnp.asarray(xy_yaw)
+    rp = jnp.zeros(xy_yaw.shape[:-1] + (2,), xy_yaw.dtype) if roll_pitch is None else jnp.asarray(roll_pitch)
+    zz = jnp.zeros(xy_yaw.shape[:-1], xy_yaw.dtype) if z is None else jnp.asarray(z)
+    R = jaxlie.SO3.from_rpy_radians(rp[..., 0], rp[..., 1], xy_yaw[..., 2])
+    t = jnp.stack([xy_yaw[..., 0], xy_yaw[..., 1], zz], -1)
+    return jaxlie.SE3.from_rotation_and_translation(R, t).wxyz_xyz
+
+
+def _roll_pitch_yaw(obs: jax.Array):
+    R = jaxlie.SE3(obs).rotation()
+    return R.compute_roll_radians(), R.compute_pitch_radians(), R.compute_yaw_radians()
+
+
+def delete_erroneous_nodes(rv: Rendezvous, sigma_deg: float = 10.0) -> tuple[Rendezvous, jax.Array, jax.Array]:
+    """Drops observations with |roll| or |pitch| > sigma (planar robots: both should be ~0).
+
+    Returns (compacted rendezvous: kept first in time order, tail padded with the last kept
+    one; valid (K,) bool: the first alpha_d + beta_d rows; keep (K,) bool in input order)."""
+    roll, pitch, _ = _roll_pitch_yaw(rv.observation)
+    sigma = jnp.deg2rad(sigma_deg)
+    keep = (jnp.abs(roll) <= sigma) & (jnp.abs(pitch) <= sigma) & jnp.all(jnp.isfinite(rv.observation), -1)
+    K = keep.shape[0]
+    count = jnp.sum(keep)
+    order = jnp.argsort(~keep, stable=True)  # kept first, time order preserved
+    valid = jnp.arange(K) < count
+    last = order[jnp.maximum(count - 1, 0)]
+    src = jnp.where(valid, order, last)  # padding repeats the last kept rendezvous
+    rows = jnp.where(count > 0, src + 1, 0)  # odometry row of each compacted rendezvous
+    rows = jnp.concatenate([jnp.zeros((1,), rows.dtype), rows])
+    out = Rendezvous(rv.odom_a[rows], rv.odom_b[rows], rv.observation[src], rv.a_observes[src])
+    return out, valid, keep
+
+
+def _between(a: jax.Array, b: jax.Array) -> jax.Array:
+    """(x, y, psi) of a^-1 b for (..., 3) poses."""
+    return se2_to_poses(jaxlie.SE2(compose(inverse(poses_to_se2(a).unit_complex_xy),
+                                           poses_to_se2(b).unit_complex_xy)))
+
+
+def _compose3(a: jax.Array, b: jax.Array) -> jax.Array:
+    return se2_to_poses(jaxlie.SE2(compose(poses_to_se2(a).unit_complex_xy, poses_to_se2(b).unit_complex_xy)))
+
+
+def _inv3(a: jax.Array) -> jax.Array:
+    return se2_to_poses(jaxlie.SE2(inverse(poses_to_se2(a).unit_complex_xy)))
+
+
+def construct_pose_graph(rv: Rendezvous, valid: jax.Array) -> PoseGraphArrays:
+    """Nodes A_0, B_0, ..., A_K, B_K; edges odometry A, odometry B, mutual per rendezvous.
+
+    Initial guess: A from its odometry; B from its odometry placed by B_0, which is taken as
+    the medoid of the B_0 implied by each kept observation (robust to a few wrong ones)."""
+    K = rv.observation.shape[0]
+    roll, pitch, yaw = _roll_pitch_yaw(rv.observation)
+    T_ref = jnp.stack([rv.observation[:, 4], rv.observation[:, 5], yaw], -1)  # (K, 3)
+    ka = jnp.arange(1, K + 1)
+    odo_a = _between(rv.odom_a[:-1], rv.odom_a[1:])  # (K, 3)
+    odo_b = _between(rv.odom_b[:-1], rv.odom_b[1:])
+    # B_k implied by each observation, then B_0 = B_k (odom_b[0]^-1 odom_b[k])^-1
+    B_k = jnp.where(rv.a_observes[:, None], _compose3(rv.odom_a[1:], T_ref),
+                    _compose3(rv.odom_a[1:], _inv3(T_ref)))
+    B0_cand = _compose3(B_k, _inv3(_between(rv.odom_b[:1], rv.odom_b[1:])))  # (K, 3)
+    d = jnp.linalg.norm(B0_cand[:, None, :2] - B0_cand[None, :, :2], axis=-1)
+    dth = B0_cand[:, None, 2] - B0_cand[None, :, 2]
+    d = d + jnp.abs(jnp.arctan2(jnp.sin(dth), jnp.cos(dth)))
+    score = jnp.where(valid[:, None] & valid[None, :], d, 0.0).sum(1)
+    best = jnp.argmin(jnp.where(valid, score, jnp.inf))
+    B0 = B0_cand[best]
+    poses_b = _compose3(B0[None], _between(rv.odom_b[:1], rv.odom_b))  # (K+1, 3)
+    poses = jnp.stack([rv.odom_a, poses_b], 1).reshape(2 * K + 2, 3)
+    A_k, Bn = 2 * ka, 2 * ka + 1
+    mutual = jnp.where(rv.a_observes[:, None], jnp.stack([A_k, Bn], -1), jnp.stack([Bn, A_k], -1))
+    edges = jnp.stack([jnp.stack([A_k - 2, A_k], -1), jnp.stack([Bn - 2, Bn], -1), mutual], 1)
+    meas = jnp.stack([odo_a, odo_b, T_ref], 1)
+    return PoseGraphArrays(poses, edges.reshape(3 * K, 2).astype(jnp.int32), meas.reshape(3 * K, 3),
+                           jnp.stack([roll, pitch], -1), valid, rv.a_observes)
+
+
+def calculate_information_matrix(g: PoseGraphArrays, kappa: float = 100.0, tau: float = 0.5) -> jax.Array:
+    """(3K, 3, 3): odometry diag(kappa); mutual diag(k_m, k_m, tau k_m) with
+    k_m = kappa/2 exp(-|roll| - |pitch|) (eqs. 9-10); zero for padding rows."""
+    K = g.valid.shape[0]
+    dt = g.measurements.dtype
+    km = 0.5 * kappa * jnp.exp(-jnp.abs(g.roll_pitch[:, 0]) - jnp.abs(g.roll_pitch[:, 1]))
+    km = jnp.where(g.valid, km, 0.0)
+    odo = jnp.full((K, 3), kappa, dt)
+    mut = jnp.stack([km, km, tau * km], -1)
+    diag = jnp.stack([odo, odo, mut], 1).reshape(3 * K, 3)
+    return diag[:, :, None] * jnp.eye(3, dtype=dt)
+
+
+def _canonical_structure(K: int):
+    """Block structure of the ladder graph (depends on K only; mutual edges as A_k -> B_k)."""
+    k = np.arange(1, K + 1)
+    e = np.stack([np.stack([2 * k - 2, 2 * k], -1), np.stack([2 * k - 1, 2 * k + 1], -1),
+                  np.stack([2 * k, 2 * k + 1], -1)], 1).reshape(3 * K, 2)
+    s = block_structure(2 * K + 2, e, 0)
+    return s, band_layout(s)
+
+
+def global_optimization(g: PoseGraphArrays, info: jax.Array, solver: SolverConfig = SolverConfig(
+        linear_solver="banded"), robust_mutual_only: bool = True):
+    """Minimises 0.5 sum r^T Omega r with A_0 fixed. Returns (poses (2K+2, 3), A_0^-1 B_0 (3,),
+    initial cost, final cost, iterations, converged)."""
+    K = g.valid.shape[0]
+    s, band = _canonical_structure(K)
+    s = jax.tree.map(jnp.asarray, s)
+    swap = jnp.zeros((K, 3), bool).at[:, 2].set(~g.a_observes).reshape(-1)
+    s = s._replace(slot_ii=jnp.where(swap, s.slot_jj, s.slot_ii), slot_jj=jnp.where(swap, s.slot_ii, s.slot_jj),
+                   ij_upper=jnp.where(swap, ~s.ij_upper, s.ij_upper))
+    dt = g.poses.dtype
+    robust = jnp.ones((K, 3), bool)
+    if robust_mutual_only:
+        robust = robust.at[:, :2].set(False)
+    p = Problem(poses_to_se2(g.poses).unit_complex_xy, poses_to_se2(g.measurements).inverse().unit_complex_xy,
+                g.edges[:, 0], g.edges[:, 1], info.astype(dt), robust.reshape(-1), s, None, band)
+    linear = solver.linear_solver if solver.linear_solver != "auto" else "banded"
+    if linear == "sparse":
+        raise RhamlError("RHAML global optimisation: use the banded or dense linear solver inside jit")
+    state, cost0 = _iterate(p, solver, linear)
+    poses = se2_to_poses(jaxlie.SE2(state.T))
+    a0_T_b0 = _between(poses[0], poses[1])
+    return poses, a0_T_b0, cost0, state.cost, state.it, state.converged
+
+
+def rhaml_pgo(rv: Rendezvous, config: RhamlPGOConfig = RhamlPGOConfig()) -> RhamlPGOResult:
+    """Algorithm 1 end to end; pure and jit-able (`jax.jit(rhaml_pgo, static_argnames="config")`)."""
+    compact, valid, keep = delete_erroneous_nodes(rv, config.sigma_deg)
+    g = construct_pose_graph(compact, valid)
+    info = calculate_information_matrix(g, config.kappa, config.tau)
+    poses, a0b0, c0, c1, it, conv = global_optimization(g, info, config.solver, config.robust_mutual_only)
+    K = valid.shape[0]
+    pr = poses.reshape(K + 1, 2, 3)
+    # B's odometry frame in A's odometry frame: B_0 = F odom_b[0]  =>  F = B_0 odom_b[0]^-1
+    F = _compose3(pr[0, 1], _inv3(compact.odom_b[0]))
+    return RhamlPGOResult(pr[:, 0], pr[:, 1], a0b0, F, jnp.sum(valid).astype(jnp.int32), keep, c0, c1, it, conv)
+
+
+def _check_rendezvous(rv: Rendezvous) -> None:
+    K = int(np.shape(rv.observation)[0])
+    check_shape("rendezvous.odom_a", rv.odom_a, (K + 1, 3))
+    check_shape("rendezvous.odom_b", rv.odom_b, (K + 1, 3))
+    check_shape("rendezvous.observation", rv.observation, (K, 7))
+    check_shape("rendezvous.a_observes", rv.a_observes, (K,))
+    for name in ("odom_a", "odom_b"):
+        check_finite(f"rendezvous.{name}", getattr(rv, name))
+    if K < 1:
+        raise RhamlError("rendezvous: at least one observation is needed")
+
+
+def rhaml_pose_graph(rv: Rendezvous, config: RhamlPGOConfig = RhamlPGOConfig()) -> PoseGraph:
+    """Host side: the paper's graph without padding (2(1 + n) nodes, 3 n edges for n kept
+    observations) as a PoseGraph with its initial guess, e.g. for `write_g2o` or GTSAM.
+    Vertex ids: A_k = 2k, B_k = 2k + 1."""
+    _check_rendezvous(rv)
+    compact, valid, _ = delete_erroneous_nodes(rv, config.sigma_deg)
+    n = int(np.sum(np.asarray(valid)))
+    if n == 0:
+        raise RhamlError(f"rendezvous: every observation has |roll| or |pitch| > {config.sigma_deg} deg "
+                         "(or is not finite): no mutual edge is left to link the robots")
+    g = construct_pose_graph(compact, valid)
+    info = calculate_information_matrix(g, config.kappa, config.tau)
+    N = 2 * (n + 1)
+    robust = np.zeros((n, 3), bool)
+    robust[:, 2] = True
+    if not config.robust_mutual_only:
+        robust[:] = True
+    return PoseGraph(np.asarray(g.poses[:N], np.float64), np.asarray(g.edges[: 3 * n], np.int32),
+                     np.asarray(g.measurements[: 3 * n], np.float64), np.asarray(info[: 3 * n], np.float64),
+                     np.arange(N, dtype=np.int64), 0, robust.reshape(-1))

@@ -1,0 +1,207 @@
+"""Gauss-Newton / Levenberg-Marquardt on SE(2) as one jit-compiled `lax.while_loop`.
+
+Each iteration solves (H + lambda D) delta = -g, D = diag(H) (floored), retracts
+x <- x Exp(delta) on every free node, and accepts the step only when the new cost is finite
+and lower. A rejected step (including a singular or non-finite one) raises lambda by
+`lambda_factor`; in "gn" mode lambda starts at 0 and falls back to 0 once steps succeed again.
+The cost is GTSAM's: 0.5 sum_e rho(r_e^T Lambda_e r_e), r_e = Log(z_e^-1 x_i^-1 x_j).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from ..errors import RhamlError
+from ._banded import BandLayout, band_layout, node_bandwidth, solve_banded
+from ._linear import SparseLayout, solve_dense, solve_sparse, sparse_layout
+from ._normal_equations import BlockStructure, assemble, block_structure
+from ._residuals import linearize, poses_to_se2, residuals, retract, se2_to_poses
+from ._robust import robust_rho_and_weight
+from ._types import PoseGraph, SolverConfig, SolveResult
+
+__all__ = ["optimize", "graph_cost", "Problem", "make_problem", "solve_problem"]
+
+
+class Problem(NamedTuple):
+    """Device-side arrays of one graph (a pytree)."""
+
+    T0: jax.Array  # (N, 4) initial poses as jaxlie SE2 parameters (cos, sin, x, y)
+    Z_inv: jax.Array  # (E, 4) inverse measurements as SE2 parameters
+    ei: jax.Array  # (E,) int32
+    ej: jax.Array  # (E,) int32
+    info: jax.Array  # (E, 3, 3)
+    robust_edges: jax.Array  # (E,) bool: the robust kernel applies (else plain squares)
+    struct: BlockStructure
+    layout: SparseLayout | None  # for the "sparse" linear solver
+    band: BandLayout | None  # for the "banded" linear solver
+
+
+class _State(NamedTuple):
+    T: jax.Array  # (N, 4)
+    cost: jax.Array  # ()
+    lam: jax.Array  # ()
+    it: jax.Array  # () int32
+    accepted: jax.Array  # () int32
+    done: jax.Array  # () bool
+    converged: jax.Array  # () bool
+
+
+def _cost(T, p: Problem, cfg: SolverConfig):
+    r = residuals(T, p.Z_inv, p.ei, p.ej)
+    s2 = jnp.einsum("ea,eab,eb->e", r, p.info, r)
+    rho, _ = _rho_w(s2, p, cfg)
+    return 0.5 * jnp.sum(rho)
+
+
+def _rho_w(s2, p: Problem, cfg: SolverConfig):
+    rho, w = robust_rho_and_weight(s2, cfg.robust, cfg.robust_delta)
+    if cfg.robust == "none":
+        return rho, w
+    return jnp.where(p.robust_edges, rho, s2), jnp.where(p.robust_edges, w, 1.0)
+
+
+def _normal_eqs(T, p: Problem, cfg: SolverConfig):
+    lin = linearize(T, p.Z_inv, p.ei, p.ej)
+    s2 = jnp.einsum("ea,eab,eb->e", lin.r, p.info, lin.r)
+    _, w = _rho_w(s2, p, cfg)
+    return assemble(lin, w[:, None, None] * p.info, p.struct)
+
+
+def _iterate(p: Problem, cfg: SolverConfig, linear: str):
+    """The solver loop; traceable (usable inside a caller's jit). Returns (state, cost0)."""
+    dt = p.T0.dtype
+    nv = p.struct.var_of_node.shape[0] - 1
+    lam0 = jnp.asarray(cfg.lambda_initial if cfg.method == "lm" else 0.0, dt)
+    cost0 = _cost(p.T0, p, cfg)
+
+    def body(s: _State) -> _State:
+        # relinearised every iteration (also after a rejected step: cheap next to the solve)
+        blocks, g = _normal_eqs(s.T, p, cfg)
+        diag = jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1)  # (nv, 3)
+        floor = 1e-9 * jnp.max(diag) + jnp.finfo(dt).tiny
+        damp = s.lam * jnp.maximum(diag, floor)
+        if linear == "dense":
+            delta = solve_dense(blocks, g, damp, p.struct)
+        elif linear == "banded":
+            delta = solve_banded(blocks, g, damp, p.band)
+        else:
+            delta = solve_sparse(blocks, g, damp, p.layout)
+        step_ok = jnp.all(jnp.isfinite(delta))
+        delta = jnp.where(step_ok, delta, 0.0)
+        full = jnp.concatenate([delta, jnp.zeros((1, 3), dt)])[p.struct.var_of_node]  # (N, 3)
+        T_new = retract(s.T, full)
+        cost_new = _cost(T_new, p, cfg)
+        gd = -jnp.sum(g * delta)  # > 0 for a descent direction
+        predicted = 0.5 * gd + 0.5 * jnp.sum(damp * delta * delta)  # decrease of the local model
+        ok = step_ok & jnp.isfinite(cost_new) & (cost_new < s.cost) & (gd > 0)
+        tol = jnp.maximum(cfg.relative_tolerance * s.cost, cfg.absolute_tolerance)
+        small = ok & (s.cost - cost_new <= tol)
+        # an undamped finite step that cannot decrease the cost by more than the tolerance:
+        # we are at the minimum already (rounding makes such steps fail)
+        flat = step_ok & ~ok & (predicted <= tol) & (s.lam == 0 if cfg.method == "gn" else True)
+        T = jnp.where(ok, T_new, s.T)
+        cost = jnp.where(ok, cost_new, s.cost)
+        lam_up = jnp.where(s.lam > 0, s.lam * cfg.lambda_factor, jnp.asarray(cfg.lambda_initial, dt))
+        lam_down = s.lam / cfg.lambda_factor
+        if cfg.method == "gn":
+            lam_down = jnp.where(lam_down < cfg.lambda_initial, 0.0, lam_down)
+        lam = jnp.where(ok, lam_down, lam_up)
+        it = s.it + 1
+        converged = small | flat | (lam > cfg.max_lambda)
+        done = converged | (it >= cfg.max_iterations)
+        return _State(T, cost, lam, it, s.accepted + ok.astype(jnp.int32), done, converged)
+
+    init = _State(p.T0, cost0, lam0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32),
+                  ~jnp.isfinite(cost0), jnp.asarray(False))
+    return jax.lax.while_loop(lambda s: ~s.done, body, init), cost0
+
+
+def _run(p: Problem, cfg: SolverConfig, linear: str):
+    s, cost0 = _iterate(p, cfg, linear)
+    return s.T, cost0, s.cost, s.it, s.accepted, s.converged
+
+
+_run_jit = jax.jit(_run, static_argnames=("cfg", "linear"))
+
+
+def make_problem(graph: PoseGraph, linear: str = "dense", dtype=None) -> Problem:
+    """Moves a graph to device arrays and computes its block sparsity (host)."""
+    dtype = dtype or jnp.result_type(float)
+    struct = block_structure(graph.num_nodes, graph.edges, graph.fixed)
+    layout = sparse_layout(struct) if linear == "sparse" else None
+    band = band_layout(struct) if linear == "banded" else None
+    T0 = poses_to_se2(jnp.asarray(graph.poses, dtype)).unit_complex_xy
+    Z_inv = poses_to_se2(jnp.asarray(graph.measurements, dtype)).inverse().unit_complex_xy
+    e = jnp.asarray(graph.edges, jnp.int32)
+    return Problem(T0, Z_inv, e[:, 0], e[:, 1], jnp.asarray(graph.information, dtype), _robust_edges(graph),
+                   jax.tree.map(jnp.asarray, struct), layout, band)
+
+
+def _robust_edges(graph: PoseGraph) -> jax.Array:
+    if graph.robust_edges is None:
+        return jnp.ones(graph.num_edges, bool)
+    return jnp.asarray(graph.robust_edges, bool)
+
+
+def choose_linear_solver(graph: PoseGraph, cfg: SolverConfig) -> str:
+    """"auto": banded when the node bandwidth is small (chains, the RHAML ladder), else dense
+    for small graphs and sparse above `dense_max_nodes`."""
+    if cfg.linear_solver != "auto":
+        return cfg.linear_solver
+    struct = block_structure(graph.num_nodes, graph.edges, graph.fixed)
+    if node_bandwidth(struct) <= cfg.banded_max_width:
+        return "banded"
+    return "dense" if graph.num_nodes <= cfg.dense_max_nodes else "sparse"
+
+
+_COMPILED: dict = {}
+
+
+def solve_problem(p: Problem, cfg: SolverConfig, linear: str):
+    """Compiles (cached by shapes) and runs; returns outputs, run seconds, compile seconds."""
+    key = (jax.tree.map(lambda a: (a.shape, a.dtype), p), cfg, linear)
+    compile_s = 0.0
+    fn = _COMPILED.get(key)
+    if fn is None:
+        t = time.perf_counter()
+        fn = _run_jit.lower(p, cfg=cfg, linear=linear).compile()
+        compile_s = time.perf_counter() - t
+        _COMPILED[key] = fn
+    t = time.perf_counter()
+    out = jax.block_until_ready(fn(p))
+    return out, time.perf_counter() - t, compile_s
+
+
+def optimize(graph: PoseGraph, config: SolverConfig = SolverConfig(), dtype=None) -> SolveResult:
+    """Minimises 0.5 sum rho(r^T Lambda r) over all poses but `graph.fixed` (the gauge)."""
+    if config.method not in ("gn", "lm"):
+        raise RhamlError(f"solver method: {config.method!r} is not one of gn, lm")
+    if config.initialization == "chordal":
+        from ._chordal import chordal_initialization
+
+        graph = graph._replace(poses=chordal_initialization(graph))
+    linear = choose_linear_solver(graph, config)
+    p = make_problem(graph, linear, dtype)
+    (T, c0, c1, it, acc, conv), seconds, compile_s = solve_problem(p, config, linear)
+    poses = np.asarray(se2_to_poses(jaxlie.SE2(T)))
+    return SolveResult(poses, float(c0), float(c1), int(it), int(acc), bool(conv), seconds, compile_s)
+
+
+def graph_cost(graph: PoseGraph, poses: np.ndarray | None = None, robust: str = "none",
+               robust_delta: float = 1.345) -> float:
+    """GTSAM's cost 0.5 sum rho(r^T Lambda r) of `graph` at `poses` (default: its own)."""
+    poses = graph.poses if poses is None else poses
+    dtype = jnp.result_type(float)
+    T = poses_to_se2(jnp.asarray(poses, dtype)).unit_complex_xy
+    Z_inv = poses_to_se2(jnp.asarray(graph.measurements, dtype)).inverse().unit_complex_xy
+    e = jnp.asarray(graph.edges, jnp.int32)
+    p = Problem(T, Z_inv, e[:, 0], e[:, 1], jnp.asarray(graph.information, dtype), _robust_edges(graph),
+                None, None, None)
+    cfg = SolverConfig(robust=robust, robust_delta=robust_delta)
+    return float(_cost(T, p, cfg))
