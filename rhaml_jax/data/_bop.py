@@ -13,6 +13,7 @@ import dataclasses
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -104,47 +105,46 @@ def bbox_of(mask: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
 
 
-@dataclasses.dataclass
-class SceneWriter:
-    """Accumulates one scene's per-image records; `close()` writes its three JSON files.
+class FrameRecord(NamedTuple):
+    """One image's entries of scene_camera.json, scene_gt.json and scene_gt_info.json."""
 
-    Images are written as they come (rgb/, mask_visib/); the JSON files at the end, atomically,
-    keyed by image id as BOP does.
+    cam: dict
+    gt: list
+    info: list
+
+
+def write_frame(folder: Path, camera, im_id: int, rgb: np.ndarray, T_w2c: np.ndarray, T_m2c: np.ndarray | None,
+                mask_visib: np.ndarray | None = None, mask_all: np.ndarray | None = None, ext: str = ".png") -> FrameRecord:
+    """Writes one image (rgb/, mask_visib/) of a scene; returns its JSON entries.
+
+    T_* are (4, 4) in metres; T_m2c None for a frame without the robot. The scene's JSON
+    files are written once all its frames are done (`write_scene_json`).
     """
+    folder = Path(folder)
+    (folder / "rgb").mkdir(parents=True, exist_ok=True)
+    write_image(folder / "rgb" / f"{im_id:06d}{ext}", rgb)
+    cam = {"cam_K": np.asarray(camera.K).reshape(9).tolist(), "cam_R_w2c": np.asarray(T_w2c)[:3, :3].reshape(9).tolist(),
+           "cam_t_w2c": (np.asarray(T_w2c)[:3, 3] * 1000.0).tolist(), "depth_scale": 1.0}
+    if T_m2c is None:
+        return FrameRecord(cam, [], [])
+    gt = [{"obj_id": OBJ_ID, "cam_R_m2c": np.asarray(T_m2c)[:3, :3].reshape(9).tolist(),
+           "cam_t_m2c": (np.asarray(T_m2c)[:3, 3] * 1000.0).tolist()}]
+    visib = np.zeros(rgb.shape[:2], bool) if mask_visib is None else mask_visib.astype(bool)
+    full = visib if mask_all is None else mask_all.astype(bool)
+    (folder / "mask_visib").mkdir(exist_ok=True)
+    write_image(folder / "mask_visib" / f"{im_id:06d}_000000.png", visib.astype(np.uint8) * 255)
+    n_all, n_vis = int(full.sum()), int(visib.sum())
+    info = [{"bbox_obj": bbox_of(full), "bbox_visib": bbox_of(visib), "px_count_all": n_all, "px_count_visib": n_vis,
+             "visib_fract": float(n_vis / n_all) if n_all else 0.0}]
+    return FrameRecord(cam, gt, info)
 
-    folder: Path
-    camera: object
-    ext: str = ".png"
 
-    def __post_init__(self):
-        self.folder = Path(self.folder)
-        (self.folder / "rgb").mkdir(parents=True, exist_ok=True)
-        (self.folder / "mask_visib").mkdir(parents=True, exist_ok=True)
-        self.cams, self.gts, self.infos = {}, {}, {}
-
-    def add(self, im_id: int, rgb: np.ndarray, T_w2c: np.ndarray, T_m2c: np.ndarray | None,
-            mask_visib: np.ndarray | None = None, mask_all: np.ndarray | None = None) -> None:
-        """One image; T_* are (4, 4) in metres; T_m2c None for a frame without the robot."""
-        write_image(self.folder / "rgb" / f"{im_id:06d}{self.ext}", rgb)
-        self.cams[str(im_id)] = {"cam_K": np.asarray(self.camera.K).reshape(9).tolist(),
-                                 "cam_R_w2c": np.asarray(T_w2c)[:3, :3].reshape(9).tolist(),
-                                 "cam_t_w2c": (np.asarray(T_w2c)[:3, 3] * 1000.0).tolist(), "depth_scale": 1.0}
-        if T_m2c is None:
-            self.gts[str(im_id)], self.infos[str(im_id)] = [], []
-            return
-        self.gts[str(im_id)] = [{"obj_id": OBJ_ID, "cam_R_m2c": np.asarray(T_m2c)[:3, :3].reshape(9).tolist(),
-                                 "cam_t_m2c": (np.asarray(T_m2c)[:3, 3] * 1000.0).tolist()}]
-        visib = np.zeros(rgb.shape[:2], bool) if mask_visib is None else mask_visib.astype(bool)
-        full = visib if mask_all is None else mask_all.astype(bool)
-        write_image(self.folder / "mask_visib" / f"{im_id:06d}_000000.png", visib.astype(np.uint8) * 255)
-        n_all, n_vis = int(full.sum()), int(visib.sum())
-        self.infos[str(im_id)] = [{"bbox_obj": bbox_of(full), "bbox_visib": bbox_of(visib), "px_count_all": n_all,
-                                   "px_count_visib": n_vis, "visib_fract": float(n_vis / n_all) if n_all else 0.0}]
-
-    def close(self) -> None:
-        write_json(self.folder / "scene_camera.json", self.cams)
-        write_json(self.folder / "scene_gt.json", self.gts)
-        write_json(self.folder / "scene_gt_info.json", self.infos)
+def write_scene_json(folder: Path, records: dict[int, FrameRecord]) -> None:
+    """scene_camera.json, scene_gt.json and scene_gt_info.json of a scene, keyed by image id."""
+    ids = sorted(records)
+    write_json(Path(folder) / "scene_camera.json", {str(i): records[i].cam for i in ids})
+    write_json(Path(folder) / "scene_gt.json", {str(i): records[i].gt for i in ids})
+    write_json(Path(folder) / "scene_gt_info.json", {str(i): records[i].info for i in ids})
 
 
 # ----------------------------------------------------------------------------- reading

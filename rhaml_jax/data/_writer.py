@@ -12,7 +12,7 @@ import numpy as np
 from rhaml_jax.camera import Camera, T_cam_robot
 from rhaml_jax.data import _trajectories as traj
 from rhaml_jax.data._backdrop import sample_light, sample_room
-from rhaml_jax.data._bop import SceneWriter, write_dataset_header
+from rhaml_jax.data._bop import write_dataset_header, write_frame, write_scene_json
 from rhaml_jax.data._synth import SynthConfig, sample_rng, scenario_frame, training_sample
 from rhaml_jax.data._tum import write_tum
 from rhaml_jax.frames import se3_from_xypsi
@@ -72,9 +72,7 @@ def _run_training_job(job: Job) -> list[tuple[str, int, dict]]:
         s = training_sample(mesh, job.camera, job.seed, index, negative=index >= job.num, cfg=job.cfg)
         T_w2c = np.asarray(T_cam_robot(s.camera_height).as_matrix(), np.float64)
         T_m2c = T_w2c @ np.asarray(se3_from_xypsi(s.xypsi).as_matrix(), np.float64) if s.observed else None
-        w = SceneWriter(Path(folder), job.camera)
-        w.add(im_id, s.rgb, T_w2c, T_m2c, s.mask_visib, s.mask_all)
-        records.append((folder, im_id, {"cam": w.cams[str(im_id)], "gt": w.gts[str(im_id)], "info": w.infos[str(im_id)]}))
+        records.append((folder, im_id, write_frame(Path(folder), job.camera, im_id, s.rgb, T_w2c, T_m2c, s.mask_visib, s.mask_all)))
     return records
 
 
@@ -90,16 +88,13 @@ def _progress(total: int, label: str):
     return p, p.add_task(label, total=total)
 
 
-def _finish_scenes(records, camera):
-    """Writes each scene's JSON files from the workers' per-image records."""
-    scenes: dict[str, SceneWriter] = {}
+def _finish_scenes(records) -> None:
+    """Writes each scene's JSON files from the per-image records."""
+    scenes: dict[str, dict] = {}
     for folder, im_id, rec in records:
-        w = scenes.get(folder)
-        if w is None:
-            w = scenes[folder] = SceneWriter(Path(folder), camera)
-        w.cams[str(im_id)], w.gts[str(im_id)], w.infos[str(im_id)] = rec["cam"], rec["gt"], rec["info"]
-    for w in scenes.values():
-        w.close()
+        scenes.setdefault(folder, {})[im_id] = rec
+    for folder, recs in scenes.items():
+        write_scene_json(Path(folder), recs)
 
 
 def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: int, negatives: int, workers: int = 2,
@@ -115,7 +110,7 @@ def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: in
             items.append((index, str(out / split / f"{k // SCENE_SIZE:06d}"), k % SCENE_SIZE))
     jobs = [Job(robot, max_faces, camera, seed, num, tuple(items[i : i + chunk]), cfg) for i in range(0, len(items), chunk)]
     records = _run(jobs, _run_training_job, workers, robot, max_faces, len(items), "rendering")
-    _finish_scenes(records, camera)
+    _finish_scenes(records)
     return {"images": len(items), "positives": num, "negatives": negatives, "out": str(out)}
 
 
@@ -163,9 +158,7 @@ def _run_scenario_job(job: ScenarioJob):
         h = 0.30
         T_w2c = np.asarray(T_cam_robot(h).as_matrix(), np.float64)
         T_m2c = T_w2c @ np.asarray(se3_from_xypsi(rel).as_matrix(), np.float64) if seen else None
-        w = SceneWriter(Path(folder), job.camera)
-        w.add(im_id, rgb, T_w2c, T_m2c, visib, visib)
-        records.append((folder, im_id, {"cam": w.cams[str(im_id)], "gt": w.gts[str(im_id)], "info": w.infos[str(im_id)]}))
+        records.append((folder, im_id, write_frame(Path(folder), job.camera, im_id, rgb, T_w2c, T_m2c, visib, visib)))
     return records
 
 
@@ -207,6 +200,6 @@ def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, 
         items += [(i, str(folder), tuple(observer[i]), tuple(observed[i])) for i in range(frames)]
     jobs = [ScenarioJob(robot, max_faces, camera, seed, bounds, tuple(items[i : i + chunk])) for i in range(0, len(items), chunk)]
     records = _run(jobs, _run_scenario_job, workers, robot, max_faces, len(items), f"rendering {name}")
-    _finish_scenes(records, camera)
-    seen = sum(1 for *_, r in records if r["gt"])
+    _finish_scenes(records)
+    seen = sum(1 for *_, r in records if r.gt)
     return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
