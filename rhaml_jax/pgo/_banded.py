@@ -43,9 +43,11 @@ def node_bandwidth(s: BlockStructure) -> int:
     return int(np.max(c - r)) if r.size else 0
 
 
-def band_layout(s: BlockStructure) -> BandLayout:
+def band_layout(s: BlockStructure, min_width: int = 1) -> BandLayout:
+    """Groups of w = max(bandwidth, min_width) variables: wider groups mean fewer sequential
+    steps with bigger blocks."""
     nv = int(np.asarray(s.var_of_node).shape[0]) - 1
-    w = max(1, node_bandwidth(s))
+    w = max(1, min_width, node_bandwidth(s))
     groups = -(-nv // w)
     M = groups
     r = np.asarray(s.block_row, dtype=np.int64)

@@ -13,6 +13,7 @@ A failed factorisation gives a non-finite step, which the solver rejects and dam
 from __future__ import annotations
 
 import collections
+import functools
 import itertools
 import threading
 from typing import NamedTuple
@@ -46,6 +47,7 @@ class SparseLayout(NamedTuple):
 class _Pattern:
     def __init__(self, n: int, indptr: np.ndarray, indices: np.ndarray):
         self.n, self.indptr, self.indices = n, indptr, indices
+        self.nnz = int(indices.size)
         self.solver = None
         self.lock = threading.Lock()
 
@@ -55,8 +57,9 @@ _TOKENS = itertools.count(1)
 _MAX_PATTERNS = 16
 
 
-def sparse_layout(s: BlockStructure) -> SparseLayout:
-    """Host side: the CSC order of every upper-triangle entry and a registered pattern."""
+def sparse_layout(s: BlockStructure, nnz_capacity: int | None = None) -> SparseLayout:
+    """Host side: the CSC order of every upper-triangle entry and a registered pattern.
+    `nnz_capacity` pads the gather (so graphs of similar size share one compiled solver)."""
     nv = int(np.asarray(s.var_of_node).shape[0]) - 1
     r = np.asarray(s.block_row, dtype=np.int64)
     c = np.asarray(s.block_col, dtype=np.int64)
@@ -75,14 +78,20 @@ def sparse_layout(s: BlockStructure) -> SparseLayout:
     _PATTERNS[token] = _Pattern(n, indptr, rows.astype(np.int64))
     while len(_PATTERNS) > _MAX_PATTERNS:
         _PATTERNS.popitem(last=False)
+    if nnz_capacity is not None and nnz_capacity > src.size:
+        src = np.concatenate([src, np.zeros(nnz_capacity - src.size, src.dtype)])
     return SparseLayout(np.asarray(src, np.int32), np.asarray(token, np.int32))
 
 
-def _host_factor_solve(token, data, rhs):
+def _host_factor_solve(token, data, rhs, wide: bool):
     import qdldl
 
+    if wide:  # float64 travels as uint32 pairs (see solve_sparse)
+        data = np.ascontiguousarray(data).view(np.float64)[..., 0]
+        rhs = np.ascontiguousarray(rhs).view(np.float64)[..., 0]
     pat = _PATTERNS[int(token)]
-    A = sp.csc_matrix((np.asarray(data, np.float64), pat.indices, pat.indptr), shape=(pat.n, pat.n))
+    n = pat.n
+    A = sp.csc_matrix((np.asarray(data[: pat.nnz], np.float64), pat.indices, pat.indptr), shape=(n, n))
     b = np.asarray(rhs, np.float64)
     with pat.lock:
         try:
@@ -94,7 +103,9 @@ def _host_factor_solve(token, data, rhs):
         except Exception:  # singular pivot: report a non-finite step, the solver damps
             pat.solver = None
             x = np.full_like(b, np.nan)
-    return np.asarray(x, dtype=np.asarray(rhs).dtype)
+    if wide:
+        return np.ascontiguousarray(x, np.float64).view(np.uint32).reshape(-1, 2)
+    return np.asarray(x, dtype=np.float32)
 
 
 def solve_sparse(blocks: jax.Array, g: jax.Array, damp: jax.Array, layout: SparseLayout) -> jax.Array:
@@ -102,8 +113,18 @@ def solve_sparse(blocks: jax.Array, g: jax.Array, damp: jax.Array, layout: Spars
     blocks = blocks.at[jnp.arange(nv), jnp.arange(3)[:, None], jnp.arange(3)[:, None]].add(damp.T)
     data = blocks.reshape(-1)[layout.src]
     rhs = -g.reshape(-1)
-    x = jax.pure_callback(
-        _host_factor_solve, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), layout.token, data, rhs,
-        vmap_method="sequential",
-    )
+    # XLA runs the callback on a thread where a caller's `jax.enable_x64` context is not
+    # active, and JAX would cast float64 arguments and results to float32 there: float64
+    # crosses as bit-identical uint32 pairs instead.
+    wide = rhs.dtype == jnp.float64
+    if wide:
+        data = jax.lax.bitcast_convert_type(data, jnp.uint32)  # (nnz, 2)
+        rhs = jax.lax.bitcast_convert_type(rhs, jnp.uint32)
+        out = jax.ShapeDtypeStruct(rhs.shape, jnp.uint32)
+    else:
+        out = jax.ShapeDtypeStruct(rhs.shape, rhs.dtype)
+    x = jax.pure_callback(functools.partial(_host_factor_solve, wide=wide), out, layout.token, data, rhs,
+                          vmap_method="sequential")
+    if wide:
+        x = jax.lax.bitcast_convert_type(x, jnp.float64)
     return x.reshape(g.shape)

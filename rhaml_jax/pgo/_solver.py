@@ -130,11 +130,58 @@ def _run(p: Problem, cfg: SolverConfig, linear: str):
 _run_jit = jax.jit(_run, static_argnames=("cfg", "linear"))
 
 
+def _bucket(n: int) -> int:
+    """Smallest power of two >= n (at least 64)."""
+    return max(64, 1 << (int(n) - 1).bit_length())
+
+
+def pad_graph(graph: PoseGraph) -> PoseGraph:
+    """Pads nodes and edges to bucket sizes so graphs of similar size share one compiled
+    solver: each extra node sits on the fixed node, tied to it by an identity edge with unit
+    information; extra edges beyond those are fixed-to-fixed with zero information. Neither
+    changes the cost, the optimum or the other nodes' steps."""
+    N, E, f = graph.num_nodes, graph.num_edges, graph.fixed
+    Np = _bucket(N)
+    Ep = _bucket(E + (Np - N))
+    extra = np.arange(N, Np)
+    e_tie = np.stack([np.full(extra.size, f), extra], 1)
+    e_nil = np.full((Ep - E - extra.size, 2), f)
+    info = np.zeros((Ep - E, 3, 3))
+    info[: extra.size] = np.eye(3)
+    robust = np.ones(E, bool) if graph.robust_edges is None else np.asarray(graph.robust_edges, bool)
+    return PoseGraph(
+        np.concatenate([graph.poses, np.repeat(graph.poses[f : f + 1], Np - N, 0)]),
+        np.concatenate([graph.edges, e_tie, e_nil]).astype(np.int32),
+        np.concatenate([graph.measurements, np.zeros((Ep - E, 3))]),
+        np.concatenate([graph.information, info]),
+        np.concatenate([graph.ids, -1 - np.arange(Np - N)]), f,
+        np.concatenate([robust, np.zeros(Ep - E, bool)]))
+
+
+def _pad_structure(struct: BlockStructure) -> BlockStructure:
+    """Pads the block list to N + E blocks (an upper bound), so the padded sizes depend on the
+    node and edge buckets only."""
+    B = struct.block_row.shape[0]
+    Bp = struct.var_of_node.shape[0] + struct.slot_ii.shape[0]
+    z = np.zeros(Bp - B, np.int32)
+    slot = lambda a: np.where(a >= B, Bp, a).astype(np.int32)  # noqa: E731  trash slot moves to Bp
+    return struct._replace(block_row=np.concatenate([struct.block_row, z]),
+                           block_col=np.concatenate([struct.block_col, z]),
+                           slot_ii=slot(struct.slot_ii), slot_jj=slot(struct.slot_jj), slot_ij=slot(struct.slot_ij))
+
+
 def make_problem(graph: PoseGraph, linear: str = "dense", dtype=None) -> Problem:
-    """Moves a graph to device arrays and computes its block sparsity (host)."""
+    """Moves a graph to device arrays and computes its block sparsity (host). For the sparse
+    solver the graph is padded to bucket sizes first (see `pad_graph`)."""
     dtype = dtype or jnp.result_type(float)
+    if linear == "sparse":
+        graph = pad_graph(graph)
     struct = block_structure(graph.num_nodes, graph.edges, graph.fixed)
-    layout = sparse_layout(struct) if linear == "sparse" else None
+    layout = None
+    if linear == "sparse":
+        padded = _pad_structure(struct)
+        layout = sparse_layout(struct, nnz_capacity=9 * padded.block_row.size)  # true blocks only
+        struct = padded
     band = band_layout(struct) if linear == "banded" else None
     T0 = poses_to_se2(jnp.asarray(graph.poses, dtype)).unit_complex_xy
     Z_inv = poses_to_se2(jnp.asarray(graph.measurements, dtype)).inverse().unit_complex_xy
@@ -189,7 +236,7 @@ def optimize(graph: PoseGraph, config: SolverConfig = SolverConfig(), dtype=None
     linear = choose_linear_solver(graph, config)
     p = make_problem(graph, linear, dtype)
     (T, c0, c1, it, acc, conv), seconds, compile_s = solve_problem(p, config, linear)
-    poses = np.asarray(se2_to_poses(jaxlie.SE2(T)))
+    poses = np.asarray(se2_to_poses(jaxlie.SE2(T)))[: graph.num_nodes]
     return SolveResult(poses, float(c0), float(c1), int(it), int(acc), bool(conv), seconds, compile_s)
 
 
