@@ -21,6 +21,7 @@ from flax import nnx
 from jax import lax
 
 from rhaml_jax.amlnet import ops
+from rhaml_jax.amlnet.init import HostInit
 
 __all__ = ["acn", "acn_reference", "ACN", "init_acn_params"]
 
@@ -77,18 +78,15 @@ def acn_reference(p: dict, x, kernels: tuple[int, ...], dense: bool):
     return out
 
 
-def _trunc(key, shape, std=0.02):
-    return std * jax.random.truncated_normal(key, -2.0, 2.0, shape, jnp.float32)
-
-
-def init_acn_params(key, c: int, kernels: tuple[int, ...], dense: bool) -> dict:
+def init_acn_params(init: HostInit | jax.Array, c: int, kernels: tuple[int, ...], dense: bool) -> dict:
+    """Initial parameters (truncated normal, std 0.02; zero biases); `init` may be a JAX key."""
+    init = init if isinstance(init, HostInit) else HostInit(init)
     if not kernels:
-        return {"w": _trunc(key, (3, 3, c)), "b": jnp.zeros((c,))}
-    keys = iter(jax.random.split(key, 1 + 2 * len(kernels)))
-    p = {"mix": _trunc(next(keys), (c, 2 * len(kernels)))}
+        return {"w": init.trunc_normal((3, 3, c))[...], "b": jnp.zeros((c,))}
+    p = {"mix": init.trunc_normal((c, 2 * len(kernels)))[...]}
     for u in "xy":
         for k in kernels:
-            p[f"{u}{k}"] = _trunc(next(keys), (k, c, c) if dense else (k, c))
+            p[f"{u}{k}"] = init.trunc_normal((k, c, c) if dense else (k, c))[...]
             p[f"b{u}{k}"] = jnp.zeros((c,))
     return p
 
@@ -96,9 +94,9 @@ def init_acn_params(key, c: int, kernels: tuple[int, ...], dense: bool) -> dict:
 class ACN(nnx.Module):
     """NNX holder of the ACN parameters; `impl` picks the fast or the reference kernels."""
 
-    def __init__(self, c: int, kernels: tuple[int, ...], dense: bool, *, rngs: nnx.Rngs):
+    def __init__(self, c: int, kernels: tuple[int, ...], dense: bool, *, init: HostInit):
         self.kernels, self.dense = tuple(kernels), bool(dense)
-        self.p = nnx.Dict({k: nnx.Param(v) for k, v in init_acn_params(rngs.params(), c, kernels, dense).items()})
+        self.p = nnx.Dict({k: nnx.Param(v) for k, v in init_acn_params(init, c, kernels, dense).items()})
 
     def params(self) -> dict:
         return {k: v[...] for k, v in self.p.items()}

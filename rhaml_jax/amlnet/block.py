@@ -13,24 +13,21 @@ from flax import nnx
 
 from rhaml_jax.amlnet import ops
 from rhaml_jax.amlnet.acn import ACN
+from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.norm import BatchNorm
 
-__all__ = ["Mixer", "AIncepBlock", "trunc_param"]
-
-
-def trunc_param(key, shape, std=0.02):
-    return nnx.Param(std * jax.random.truncated_normal(key, -2.0, 2.0, shape, jnp.float32))
+__all__ = ["Mixer", "AIncepBlock"]
 
 
 class Mixer(nnx.Module):
-    def __init__(self, c: int, kernels, dense: bool, band: int, branch_ratio: int, *, rngs: nnx.Rngs):
+    def __init__(self, c: int, kernels, dense: bool, band: int, branch_ratio: int, *, init: HostInit):
         g = c // branch_ratio
         self.split = (c - 3 * g, g, g, g)
-        self.acn = ACN(g, kernels, dense, rngs=rngs)
-        self.band_w = trunc_param(rngs.params(), (band, g))
-        self.band_w_b = nnx.Param(jnp.zeros((g,)))
-        self.band_h = trunc_param(rngs.params(), (band, g))
-        self.band_h_b = nnx.Param(jnp.zeros((g,)))
+        self.acn = ACN(g, kernels, dense, init=init)
+        self.band_w = init.trunc_normal((band, g))
+        self.band_w_b = init.zeros((g,))
+        self.band_h = init.trunc_normal((band, g))
+        self.band_h_b = init.zeros((g,))
 
     def __call__(self, x, impl: str = "fast"):
         i0, g = self.split[0], self.split[1]
@@ -43,14 +40,14 @@ class Mixer(nnx.Module):
 
 
 class AIncepBlock(nnx.Module):
-    def __init__(self, c: int, ratio: int, cfg, *, rngs: nnx.Rngs):
-        self.mixer = Mixer(c, cfg.acn_kernels, cfg.acn_dense, cfg.band_kernel, cfg.branch_ratio, rngs=rngs)
+    def __init__(self, c: int, ratio: int, cfg, *, init: HostInit):
+        self.mixer = Mixer(c, cfg.acn_kernels, cfg.acn_dense, cfg.band_kernel, cfg.branch_ratio, init=init)
         self.norm = BatchNorm(c)
-        self.fc1 = trunc_param(rngs.params(), (c, ratio * c))
-        self.fc1_b = nnx.Param(jnp.zeros((ratio * c,)))
-        self.fc2 = trunc_param(rngs.params(), (ratio * c, c))
-        self.fc2_b = nnx.Param(jnp.zeros((c,)))
-        self.gamma = nnx.Param(jnp.full((c,), cfg.layer_scale_init, jnp.float32))
+        self.fc1 = init.trunc_normal((c, ratio * c))
+        self.fc1_b = init.zeros((ratio * c,))
+        self.fc2 = init.trunc_normal((ratio * c, c))
+        self.fc2_b = init.zeros((c,))
+        self.gamma = init.full((c,), cfg.layer_scale_init)
         self.drop_path = float(cfg.drop_path)
 
     def __call__(self, x, train: bool, key=None, impl: str = "fast"):

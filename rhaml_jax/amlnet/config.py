@@ -14,7 +14,8 @@ Named configs
 - ``cpu``: the network that trains on the project's 2-core CPU machine in about two hours
   (see `CPU_RATIONALE`), plus its Table II ablation ``cpu_k0``, ``cpu_k3``, ``cpu_k35``.
 - ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
-- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_frontnet``: test-size networks (seconds to compile).
+- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
+  compiler needs ~0.1 s per fused kernel, so tests use the smallest networks that cover the code).
 """
 
 from __future__ import annotations
@@ -149,6 +150,7 @@ CONFIGS: dict[str, ModelConfig] = {
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),
     "tiny_k0": _amlnet("tiny_k0", acn_kernels=(), **_TINY),
+    "micro": _amlnet("micro", input_hw=(16, 16), depths=(1, 1), dims=(16, 16), mlp_ratios=(2, 2), neck=(8,), layer_scale_init=0.1),
     "tiny_frontnet": FrontNetConfig("tiny_frontnet", input_hw=(32, 32), stem_channels=8, channels=(8, 8, 16)),
 }
 

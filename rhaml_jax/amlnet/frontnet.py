@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 from rhaml_jax.amlnet import ops
-from rhaml_jax.amlnet.block import trunc_param
+from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import FrontNetConfig, num_outputs
 from rhaml_jax.amlnet.model import normalize_images
 from rhaml_jax.amlnet.norm import BatchNorm
@@ -17,29 +17,24 @@ from rhaml_jax.amlnet.norm import BatchNorm
 __all__ = ["FrontNet"]
 
 
-def _he(key, shape):
-    fan_in = shape[0] * shape[1] * shape[2]
-    return nnx.Param(jax.random.normal(key, shape, jnp.float32) * jnp.sqrt(2.0 / fan_in))
-
-
 class FrontNet(nnx.Module):
-    def __init__(self, cfg: FrontNetConfig, *, rngs: nnx.Rngs):
+    def __init__(self, cfg: FrontNetConfig, *, init: HostInit):
         self.cfg = cfg
-        self.stem = _he(rngs.params(), (5, 5, 3, cfg.stem_channels))
+        self.stem = init.he_normal((5, 5, 3, cfg.stem_channels))
         self.stem_norm = BatchNorm(cfg.stem_channels)
         convs, norms, strides = [], [], []
         prev = cfg.stem_channels
         for c in cfg.channels:
             for s in (2, 1):
-                convs.append(_he(rngs.params(), (3, 3, prev, c)))
+                convs.append(init.he_normal((3, 3, prev, c)))
                 norms.append(BatchNorm(c))
                 strides.append(s)
                 prev = c
         self.convs, self.norms, self.strides = nnx.List(convs), nnx.List(norms), tuple(strides)
         h, w = cfg.input_hw
         flat = prev * (h // 2 ** (2 + len(cfg.channels))) * (w // 2 ** (2 + len(cfg.channels)))
-        self.fc = trunc_param(rngs.params(), (flat, num_outputs(cfg)))
-        self.fc_b = nnx.Param(jnp.zeros((num_outputs(cfg),)))
+        self.fc = init.trunc_normal((flat, num_outputs(cfg)))
+        self.fc_b = init.zeros((num_outputs(cfg),))
 
     def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
         x = ops.conv_ref(normalize_images(images), self.stem[...], stride=2)

@@ -19,6 +19,7 @@ from flax import nnx
 
 from rhaml_jax.amlnet.config import AMLNetConfig, FrontNetConfig, ModelConfig
 from rhaml_jax.amlnet.frontnet import FrontNet
+from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.model import AMLNet
 from rhaml_jax.errors import RhamlError
 
@@ -26,11 +27,12 @@ __all__ = ["Net", "build", "make_module", "check_images"]
 
 
 def make_module(cfg: ModelConfig, key) -> nnx.Module:
-    rngs = nnx.Rngs(params=key)
+    """The NNX module of `cfg`, initialised from `key` (None: zeros, for shape-only builds)."""
+    init = HostInit(key)
     if isinstance(cfg, AMLNetConfig):
-        return AMLNet(cfg, rngs=rngs)
+        return AMLNet(cfg, init=init)
     if isinstance(cfg, FrontNetConfig):
-        return FrontNet(cfg, rngs=rngs)
+        return FrontNet(cfg, init=init)
     raise RhamlError(f"model config: unsupported type {type(cfg).__name__}")
 
 
@@ -54,10 +56,7 @@ class Net:
 def build(cfg: ModelConfig, key=None, abstract: bool = False) -> Net:
     """Initialises `cfg` with PRNG `key` (default key 0); `abstract` gives shapes only."""
     key = jax.random.key(0) if key is None else key
-    if abstract:
-        model = nnx.eval_shape(lambda: make_module(cfg, key))
-    else:
-        model = make_module(cfg, key)
+    model = nnx.eval_shape(lambda: make_module(cfg, None)) if abstract else make_module(cfg, key)
     graphdef, params, batch_stats = nnx.split(model, nnx.Param, nnx.BatchStat)
     return Net(cfg, graphdef, params, batch_stats)
 

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 from flax import nnx
 
 from rhaml_jax.amlnet import ops
-from rhaml_jax.amlnet.block import AIncepBlock, trunc_param
+from rhaml_jax.amlnet.block import AIncepBlock
+from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import AMLNetConfig, num_outputs
 from rhaml_jax.amlnet.norm import BatchNorm
 
@@ -28,32 +29,32 @@ def normalize_images(images):
 
 
 class Linear(nnx.Module):
-    def __init__(self, a: int, b: int, *, rngs: nnx.Rngs):
-        self.w = trunc_param(rngs.params(), (a, b))
-        self.b = nnx.Param(jnp.zeros((b,)))
+    def __init__(self, a: int, b: int, *, init: HostInit):
+        self.w = init.trunc_normal((a, b))
+        self.b = init.zeros((b,))
 
     def __call__(self, x):
         return x @ self.w[...] + self.b[...]
 
 
 class AMLNet(nnx.Module):
-    def __init__(self, cfg: AMLNetConfig, *, rngs: nnx.Rngs):
+    def __init__(self, cfg: AMLNetConfig, *, init: HostInit):
         self.cfg = cfg
         d0 = cfg.dims[0]
-        self.stem = trunc_param(rngs.params(), (4, 4, 3, d0))
-        self.stem_b = nnx.Param(jnp.zeros((d0,)))
+        self.stem = init.trunc_normal((4, 4, 3, d0))
+        self.stem_b = init.zeros((d0,))
         self.stem_norm = BatchNorm(d0)
         downs, stages = [], []
         for i, (depth, c, r) in enumerate(zip(cfg.depths, cfg.dims, cfg.mlp_ratios)):
             if i:
                 prev = cfg.dims[i - 1]
-                downs.append(nnx.Dict(norm=BatchNorm(prev), w=trunc_param(rngs.params(), (2, 2, prev, c)), b=nnx.Param(jnp.zeros((c,)))))
-            stages.append(nnx.List([AIncepBlock(c, r, cfg, rngs=rngs) for _ in range(depth)]))
+                downs.append(nnx.Dict(norm=BatchNorm(prev), w=init.trunc_normal((2, 2, prev, c)), b=init.zeros((c,))))
+            stages.append(nnx.List([AIncepBlock(c, r, cfg, init=init) for _ in range(depth)]))
         self.downs = nnx.List(downs)
         self.stages = nnx.List(stages)
         widths = (cfg.dims[-1],) + tuple(cfg.neck)
-        self.neck = nnx.List([Linear(a, b, rngs=rngs) for a, b in zip(widths[:-1], widths[1:])])
-        self.head = Linear(widths[-1], num_outputs(cfg), rngs=rngs)
+        self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
+        self.head = Linear(widths[-1], num_outputs(cfg), init=init)
 
     def features(self, images, train: bool = False, key=None, impl: str = "fast"):
         patch = ops.patchify if impl == "fast" else ops.patchify_ref

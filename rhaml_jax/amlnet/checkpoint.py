@@ -1,0 +1,80 @@
+"""Orbax checkpoints of AMLNet training runs: one folder per run, the model config stored
+beside the weights (a checkpoint alone rebuilds the model).
+
+Layout: DIR/checkpoints/<step>/{state, meta}; `state` = {"params", "batch_stats",
+"opt_state"} (Orbax StandardSave), `meta` = JSON {"model_config", "train_config", "step",
+"data"}.  Orbax writes each step into a temporary folder and renames it when complete, so a
+killed run leaves the previous checkpoints intact and never a half-written one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from rhaml_jax.amlnet.config import ModelConfig, config_from_dict, config_to_dict
+from rhaml_jax.amlnet.functional import Net, build
+from rhaml_jax.errors import RhamlError
+
+__all__ = ["Checkpoints", "load_model"]
+
+
+class Checkpoints:
+    def __init__(self, run_dir: str | Path, keep: int = 2, read_only: bool = False):
+        self.dir = Path(run_dir).absolute() / "checkpoints"
+        if read_only and not self.dir.is_dir():
+            raise RhamlError(f"{run_dir}: no Orbax checkpoints (missing folder {self.dir})")
+        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=not read_only, enable_async_checkpointing=False, read_only=read_only)
+        self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
+
+    def latest_step(self) -> int | None:
+        return self.mngr.latest_step()
+
+    def save(self, step: int, state: dict, meta: dict) -> None:
+        state = jax.tree.map(np.asarray, state)
+        self.mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)))
+        self.mngr.wait_until_finished()
+
+    def meta(self, step: int | None = None) -> dict:
+        step = self.latest_step() if step is None else step
+        if step is None:
+            raise RhamlError(f"{self.dir}: no checkpoint saved yet")
+        return self.mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+
+    def restore(self, step: int, like: dict) -> dict:
+        """Restores `state` at `step` into the structure (and dtypes) of `like`."""
+        abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype), like)
+        try:
+            out = self.mngr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
+        except (ValueError, KeyError, TypeError) as e:
+            raise RhamlError(f"{self.dir}/{step}: checkpoint does not match the model: {str(e).splitlines()[0][:200]}") from None
+        return out["state"]
+
+    def close(self) -> None:
+        self.mngr.close()
+
+
+def check_config(meta: dict, cfg: ModelConfig, where) -> None:
+    stored = config_from_dict(meta["model_config"])
+    if stored != cfg:
+        raise RhamlError(f"{where}: checkpoint holds model config {stored.name!r} ({meta['model_config']}), not {cfg.name!r}")
+
+
+def load_model(run_dir: str | Path, step: int | None = None) -> tuple[Net, object, object]:
+    """(net, params, batch_stats) from a run folder, rebuilt from the stored config alone."""
+    from rhaml_jax.amlnet.steps import make_optimizer
+
+    ck = Checkpoints(run_dir, read_only=True)
+    try:
+        step = ck.latest_step() if step is None else step
+        if step is None:
+            raise RhamlError(f"{run_dir}: no checkpoint saved yet")
+        cfg = config_from_dict(ck.meta(step)["model_config"])
+        net = build(cfg, abstract=True)
+        opt = jax.eval_shape(make_optimizer(1e-3, 2).init, net.params)
+        state = ck.restore(step, {"params": net.params, "batch_stats": net.batch_stats, "opt_state": opt})
+    finally:
+        ck.close()
+    return net, state["params"], state["batch_stats"]
