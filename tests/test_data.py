@@ -135,6 +135,19 @@ def test_generation_is_deterministic(training_set, tmp_path):
         assert (out / rel).read_bytes() == (training_set / rel).read_bytes(), rel
 
 
+def test_interrupted_generation_resumes(training_set, tmp_path):
+    """A run stopped before a scene's JSON was written redoes only that scene, to the same bytes."""
+    out = tmp_path / "resumed"
+    shutil.copytree(training_set, out)
+    (out / "val/000000/scene_gt.json").unlink()
+    (out / "val/000000/rgb/000003.png").unlink()
+    kept = (out / "train/000000/rgb/000000.png").stat().st_mtime_ns
+    write_training_set(out, "pioneer3dx", SMALL, seed=7, num=180, negatives=20, workers=1)
+    assert (out / "train/000000/rgb/000000.png").stat().st_mtime_ns == kept  # complete scene skipped
+    for rel in ("val/000000/scene_gt.json", "val/000000/rgb/000003.png", "val/000000/scene_gt_info.json"):
+        assert (out / rel).read_bytes() == (training_set / rel).read_bytes(), rel
+
+
 def test_scenario_files(tmp_path):
     out = tmp_path / "circle"
     write_scenario(out, "circle", "pioneer3dx", SMALL, seed=0, frames=24, workers=1)

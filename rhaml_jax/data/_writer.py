@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -88,15 +89,6 @@ def _progress(total: int, label: str):
     return p, p.add_task(label, total=total)
 
 
-def _finish_scenes(records) -> None:
-    """Writes each scene's JSON files from the per-image records."""
-    scenes: dict[str, dict] = {}
-    for folder, im_id, rec in records:
-        scenes.setdefault(folder, {})[im_id] = rec
-    for folder, recs in scenes.items():
-        write_scene_json(Path(folder), recs)
-
-
 def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: int, negatives: int, workers: int = 2,
                        chunk: int = 25, max_faces: int | None = None, cfg: SynthConfig = SynthConfig()) -> dict:
     """A BOP training set of `num` robot images and `negatives` background-only images."""
@@ -108,27 +100,55 @@ def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: in
     for split, indices in layout(num, negatives).items():
         for k, index in enumerate(indices):
             items.append((index, str(out / split / f"{k // SCENE_SIZE:06d}"), k % SCENE_SIZE))
-    jobs = [Job(robot, max_faces, camera, seed, num, tuple(items[i : i + chunk]), cfg) for i in range(0, len(items), chunk)]
-    records = _run(jobs, _run_training_job, workers, robot, max_faces, len(items), "rendering")
-    _finish_scenes(records)
+    _run(items, lambda chunk_items: Job(robot, max_faces, camera, seed, num, chunk_items, cfg), _run_training_job,
+         workers, robot, max_faces, "rendering", chunk)
     return {"images": len(items), "positives": num, "negatives": negatives, "out": str(out)}
 
 
-def _run(jobs, fn, workers, robot, max_faces, total, label):
-    records = []
-    progress, task = _progress(total, label)
+def _scene_done(folder: Path, ids: list[int]) -> bool:
+    """Whether a scene was completely written by an earlier run (its JSON lists every image)."""
+    try:
+        gt = json.loads((folder / "scene_gt.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    return sorted(int(k) for k in gt) == sorted(ids) and all((folder / "rgb" / f"{i:06d}.png").exists() for i in ids)
+
+
+def _run(items, make_job, fn, workers, robot, max_faces, label, chunk: int) -> int:
+    """Renders `items` [(.., folder, im_id, ..)] in chunks; writes each scene's JSON as soon as
+    its last image is done, and skips scenes an interrupted earlier run completed (the images
+    are a pure function of their index, so the result is the same as one uninterrupted run).
+    Returns the number of frames with the robot in view."""
+    by_scene: dict[str, list[int]] = {}
+    for it in items:
+        by_scene.setdefault(it[1], []).append(it[2])
+    todo = [it for it in items if not _scene_done(Path(it[1]), by_scene[it[1]])]
+    skipped = {f for f in by_scene if not any(it[1] == f for it in todo)}
+    seen = sum(sum(1 for v in json.loads((Path(f) / "scene_gt.json").read_text()).values() if v) for f in skipped)
+    jobs = [make_job(tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
+    pending: dict[str, dict] = {}
+    progress, task = _progress(len(items), label)
+    progress.advance(task, len(items) - len(todo))
     with progress:
         if workers <= 1:
-            for job in jobs:
-                r = fn(job)
-                records += r
-                progress.advance(task, len(r))
+            results = map(fn, jobs)
+            pool = None
         else:
-            with _pool(workers, robot, max_faces) as pool:
-                for r in pool.map(fn, jobs):
-                    records += r
-                    progress.advance(task, len(r))
-    return records
+            pool = _pool(workers, robot, max_faces)
+            results = pool.map(fn, jobs)
+        try:
+            for recs in results:
+                for folder, im_id, rec in recs:
+                    scene = pending.setdefault(folder, {})
+                    scene[im_id] = rec
+                    seen += bool(rec.gt)
+                    if len(scene) == len(by_scene[folder]):
+                        write_scene_json(Path(folder), pending.pop(folder))
+                progress.advance(task, len(recs))
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+    return seen
 
 
 # ----------------------------------------------------------------------------- scenarios
@@ -141,7 +161,7 @@ class ScenarioJob:
     camera: Camera
     seed: int
     room_bounds: tuple[float, float, float, float]
-    frames: tuple[tuple[int, str, tuple, tuple], ...]  # (im_id, folder, observer pose, observed pose) world frame
+    frames: tuple[tuple[int, str, int, tuple, tuple], ...]  # (key, folder, im_id, observer pose, observed pose), world frame
 
 
 def _scene_look(seed: int, bounds):
@@ -153,7 +173,7 @@ def _run_scenario_job(job: ScenarioJob):
     mesh = _mesh(job.robot, job.max_faces)
     room, light = _scene_look(job.seed, job.room_bounds)
     records = []
-    for im_id, folder, obs, tgt in job.frames:
+    for _, folder, im_id, obs, tgt in job.frames:
         rgb, visib, rel, seen = scenario_frame(mesh, job.camera, room, light, obs, tgt)
         h = 0.30
         T_w2c = np.asarray(T_cam_robot(h).as_matrix(), np.float64)
@@ -198,8 +218,7 @@ def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, 
         write_tum(folder / "observer_odometry.txt", odo_observer)
         write_tum(folder / "observed_odometry.txt", odo_observed)
         items += [(i, str(folder), tuple(observer[i]), tuple(observed[i])) for i in range(frames)]
-    jobs = [ScenarioJob(robot, max_faces, camera, seed, bounds, tuple(items[i : i + chunk])) for i in range(0, len(items), chunk)]
-    records = _run(jobs, _run_scenario_job, workers, robot, max_faces, len(items), f"rendering {name}")
-    _finish_scenes(records)
-    seen = sum(1 for *_, r in records if r.gt)
+    items = [(i, folder, i, obs, tgt) for i, folder, obs, tgt in items]  # (key, folder, im_id, ...)
+    seen = _run(items, lambda chunk_items: ScenarioJob(robot, max_faces, camera, seed, bounds, chunk_items), _run_scenario_job,
+                workers, robot, max_faces, f"rendering {name}", chunk)
     return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
