@@ -20,6 +20,7 @@ from rhaml_jax.amlnet.norm import BatchNorm
 
 __all__ = ["AMLNet", "normalize_images"]
 
+X_INIT = 4.5
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -55,6 +56,9 @@ class AMLNet(nnx.Module):
         widths = (cfg.dims[-1],) + tuple(cfg.neck)
         self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
         self.head = Linear(widths[-1], num_outputs(cfg), init=init)
+        # Start x at the middle of the working depth range (2-7 m) instead of 0 m, so that the
+        # first steps do not spend themselves on a 4.5 m offset.
+        self.head.b[...] = self.head.b[...].at[1].set(X_INIT)
 
     def features(self, images, train: bool = False, key=None, impl: str = "fast"):
         patch = ops.patchify if impl == "fast" else ops.patchify_ref

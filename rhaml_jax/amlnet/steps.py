@@ -18,7 +18,7 @@ import optax
 from rhaml_jax.amlnet.functional import Net
 from rhaml_jax.amlnet.loss import amlnet_loss
 
-__all__ = ["Steps", "make_steps", "make_optimizer"]
+__all__ = ["Steps", "make_steps", "make_optimizer", "make_schedule"]
 
 
 class Steps(NamedTuple):
@@ -28,13 +28,16 @@ class Steps(NamedTuple):
     fused_step: Callable  # (params, stats, opt_state, images, observed, pose, key) -> (params, stats, opt_state, loss)
 
 
-def make_optimizer(lr: float = 1e-3, steps: int = 1000, weight_decay: float = 0.05, warmup: int = 0):
-    """AdamW with cosine annealing from `lr` to 0 over `steps` (optional linear warm-up)."""
+def make_schedule(lr: float = 1e-3, steps: int = 1000, warmup: int = 0):
+    """Cosine annealing from `lr` to 0 over `steps` (optional linear warm-up)."""
     if warmup > 0:
-        sched = optax.warmup_cosine_decay_schedule(0.0, lr, warmup, max(steps, warmup + 1))
-    else:
-        sched = optax.cosine_decay_schedule(lr, max(steps, 1))
-    return optax.adamw(sched, weight_decay=weight_decay)
+        return optax.warmup_cosine_decay_schedule(0.0, lr, warmup, max(steps, warmup + 1))
+    return optax.cosine_decay_schedule(lr, max(steps, 1))
+
+
+def make_optimizer(lr: float = 1e-3, steps: int = 1000, weight_decay: float = 0.05, warmup: int = 0):
+    """AdamW with `make_schedule`."""
+    return optax.adamw(make_schedule(lr, steps, warmup), weight_decay=weight_decay)
 
 
 def make_steps(net: Net, tx: optax.GradientTransformation, w_psi: float = 3.0, w_p: float = 2.0,

@@ -1,0 +1,28 @@
+"""Validation metrics in the paper's terms: abs dx, dy (cm) and abs dpsi (deg, wrapped) over
+the frames with a robot in view, and detection accuracy (o > 0.5) over all frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["pose_metrics"]
+
+
+def pose_metrics(pred: dict, observed: np.ndarray, pose: np.ndarray) -> dict:
+    """pred: decoded outputs (numpy arrays o, x, y, psi); observed (N,), pose (N, 3)."""
+    obs = np.asarray(observed) > 0.5
+    det = (np.asarray(pred["o"]) > 0.5) == obs
+    out = {
+        "detection_acc": float(np.mean(det)),
+        "tp": int(np.sum(det & obs)), "fn": int(np.sum(~det & obs)),
+        "tn": int(np.sum(det & ~obs)), "fp": int(np.sum(~det & ~obs)),
+    }
+    if obs.any():
+        dx = 100 * np.abs(np.asarray(pred["x"])[obs] - pose[obs, 0])
+        dy = 100 * np.abs(np.asarray(pred["y"])[obs] - pose[obs, 1])
+        d = np.asarray(pred["psi"])[obs] - pose[obs, 2]
+        dpsi = np.degrees(np.abs(np.arctan2(np.sin(d), np.cos(d))))
+        for name, v in (("dx_cm", dx), ("dy_cm", dy), ("dpsi_deg", dpsi)):
+            out[name] = float(np.mean(v))
+            out[name + "_std"] = float(np.std(v))
+    return out
