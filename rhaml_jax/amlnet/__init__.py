@@ -1,0 +1,31 @@
+"""AMLNet, the initial mutual-localisation network (paper section III-A), in JAX / Flax NNX.
+
+Public API:
+- configs: `get_config(name)`, `config_names()`, `AMLNetConfig`, `FrontNetConfig`,
+  `config_to_dict` / `config_from_dict`;
+- network: `build(cfg, key) -> Net` (graphdef split once; `net.apply(params, batch_stats,
+  images)`, `net.train_apply(params, batch_stats, images, key) -> (out, new_batch_stats)`),
+  `acn` / `acn_reference` (eqs. 1-2 as pure functions), `decode(out)`;
+- loss: `amlnet_loss` (eqs. 3-5, negatives masked out of L_p);
+- counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
+- training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
+  `load_model(run_dir)`; `ToyRectangles` is a toy source for tests only.
+"""
+
+from rhaml_jax.amlnet.acn import acn, acn_reference
+from rhaml_jax.amlnet.checkpoint import load_model
+from rhaml_jax.amlnet.config import (AMLNetConfig, FrontNetConfig, config_from_dict, config_names, config_to_dict,
+                                     get_config)
+from rhaml_jax.amlnet.count import count_macs, count_params
+from rhaml_jax.amlnet.data import Batch, BatchSource, ToyRectangles
+from rhaml_jax.amlnet.describe import describe
+from rhaml_jax.amlnet.functional import Net, build, check_images
+from rhaml_jax.amlnet.loss import amlnet_loss, decode
+from rhaml_jax.amlnet.trainer import TrainConfig, train_amlnet
+
+__all__ = [
+    "AMLNetConfig", "FrontNetConfig", "get_config", "config_names", "config_to_dict", "config_from_dict",
+    "Net", "build", "check_images", "acn", "acn_reference", "decode", "amlnet_loss",
+    "count_params", "count_macs", "describe", "Batch", "BatchSource", "ToyRectangles",
+    "TrainConfig", "train_amlnet", "load_model",
+]
