@@ -39,7 +39,11 @@ class Source(Protocol):
 
 @dataclasses.dataclass
 class OnTheFly:
-    """Renders example `index` of the infinite synthetic stream `seed` at width x height."""
+    """Renders example `index` of the infinite synthetic stream `seed` at width x height.
+
+    `supersample` renders at that many times the size and downsamples (area filter), as the
+    full-resolution camera image is downsampled to the network's input at evaluation.
+    """
 
     robot: str
     width: int
@@ -47,6 +51,7 @@ class OnTheFly:
     seed: int = 0
     cfg: SynthConfig = SynthConfig()
     max_faces: int | None = None
+    supersample: int = 1
     size: int | None = None
 
     def __post_init__(self):
@@ -54,11 +59,14 @@ class OnTheFly:
         from rhaml_jax.robots import load_robot
 
         self._mesh = as_mesh(load_robot(self.robot, self.max_faces))
-        self._camera = DEFAULT_CAMERA.resized(self.width, self.height)
+        self._camera = DEFAULT_CAMERA.resized(self.width * self.supersample, self.height * self.supersample)
 
     def example(self, index: int):
         s = training_sample(self._mesh, self._camera, self.seed, index, cfg=self.cfg)
-        return s.rgb, float(s.observed), s.xypsi.astype(np.float32)
+        img = s.rgb
+        if self.supersample > 1:
+            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        return img, float(s.observed), s.xypsi.astype(np.float32)
 
 
 @dataclasses.dataclass
@@ -125,3 +133,18 @@ def make_batch_fn(source: Source, batch: int, seed: int = 0, augment_cfg: Augmen
         return fut.result() if fut is not None else build(step)
 
     return batch_fn
+
+
+def amlnet_batch_source(input_hw: tuple[int, int], batch: int, seed: int, robot: str, data_dir: Path | None,
+                        split: str = "train"):
+    """The AMLNet trainer's data: batch_fn(step) at the network's input (H, W).
+
+    From the BOP set `data_dir` (its `split`), or generated on the fly (2x supersampled) when
+    None. Training batches are augmented; validation batches are not.
+    """
+    h, w = input_hw
+    if data_dir is None:
+        source = OnTheFly(robot, w, h, seed=seed, supersample=2)
+    else:
+        source = FromDisk(Path(data_dir), w, h, split)
+    return make_batch_fn(source, batch, seed, augment_cfg=AugmentConfig() if split == "train" else None)
