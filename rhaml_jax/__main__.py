@@ -23,13 +23,12 @@ def main() -> None:
             print(f"error: command {command!r} is not available in this version", file=sys.stderr)
             sys.exit(2)
         raise
+    if hasattr(module, "__path__"):  # a package: its command lives in __main__
+        module = importlib.import_module(f"rhaml_jax.{command}.__main__")
     sys.argv = [f"rhaml {command}"] + sys.argv[2:]
-    if command == "pgo" and hasattr(module, "cli"):
-        module.cli()
-    else:
-        from rhaml_jax.errors import run_cli
+    from rhaml_jax.errors import run_cli
 
-        run_cli(module.main)
+    run_cli(module.main)
 
 
 if __name__ == "__main__":
