@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from rhaml_jax.render._edges import inside
@@ -47,7 +48,10 @@ def zbuffer(sf: ScreenFaces, width: int, height: int, *, block: int, chunk_pixel
         iz = plane[:, 0:1] * u + plane[:, 1:2] * v + plane[:, 2:3]
         hit = inside(sf.poly[pr.face], sf.orient[pr.face], u, v) & pr.used & (iz > 0) & (iz <= max_iz)
         z = 1.0 / jnp.where(hit, iz, 1.0)  # guard: no 1/0 off the face
+        # Computed before the scatters consume them: XLA's CPU scatter fusion would otherwise
+        # evaluate the tests element by element inside the scatter's serial loop.
         idx = jnp.where(hit, pr.index, npix)
+        z, hit, idx = jax.lax.optimization_barrier((z, hit, idx))
         safe = jnp.minimum(idx, npix - 1)
         old = zbuf[safe]
         zbuf = zbuf.at[idx].min(z, mode="drop")
