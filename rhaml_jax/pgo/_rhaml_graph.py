@@ -33,6 +33,7 @@ from ..errors import RhamlError, check_finite, check_shape
 from ._banded import band_layout
 from ._normal_equations import block_structure
 from ._residuals import compose, inverse, poses_to_se2, se2_to_poses
+from ._ladder import ladder_iterate
 from ._solver import Problem, _iterate
 from ._types import PoseGraph, SolverConfig
 
@@ -193,21 +194,26 @@ def global_optimization(g: PoseGraphArrays, info: jax.Array, solver: SolverConfi
     """Minimises 0.5 sum r^T Omega r with A_0 fixed. Returns (poses (2K+2, 3), A_0^-1 B_0 (3,),
     initial cost, final cost, iterations, converged)."""
     K = g.valid.shape[0]
-    s, band = _canonical_structure(K)
-    s = jax.tree.map(jnp.asarray, s)
-    swap = jnp.zeros((K, 3), bool).at[:, 2].set(~g.a_observes).reshape(-1)
-    s = s._replace(slot_ii=jnp.where(swap, s.slot_jj, s.slot_ii), slot_jj=jnp.where(swap, s.slot_ii, s.slot_jj),
-                   ij_upper=jnp.where(swap, ~s.ij_upper, s.ij_upper))
     dt = g.poses.dtype
     robust = jnp.ones((K, 3), bool)
     if robust_mutual_only:
         robust = robust.at[:, :2].set(False)
-    p = Problem(poses_to_se2(g.poses).unit_complex_xy, poses_to_se2(g.measurements).inverse().unit_complex_xy,
-                g.edges[:, 0], g.edges[:, 1], info.astype(dt), robust.reshape(-1), s, None, band)
+    T0 = poses_to_se2(g.poses).unit_complex_xy
+    Z_inv = poses_to_se2(g.measurements).inverse().unit_complex_xy
     linear = solver.linear_solver if solver.linear_solver != "auto" else "banded"
     if linear == "sparse":
         raise RhamlError("RHAML global optimisation: use the banded or dense linear solver inside jit")
-    state, cost0 = _iterate(p, solver, linear)
+    if linear == "banded":  # the ladder's block-tridiagonal H, assembled without scatters
+        p = Problem(T0, Z_inv, g.edges[:, 0], g.edges[:, 1], info.astype(dt), robust.reshape(-1), None, None, None)
+        state, cost0 = ladder_iterate(p, g.a_observes, solver)
+    else:
+        s, band = _canonical_structure(K)
+        s = jax.tree.map(jnp.asarray, s)
+        swap = jnp.zeros((K, 3), bool).at[:, 2].set(~g.a_observes).reshape(-1)
+        s = s._replace(slot_ii=jnp.where(swap, s.slot_jj, s.slot_ii), slot_jj=jnp.where(swap, s.slot_ii, s.slot_jj),
+                       ij_upper=jnp.where(swap, ~s.ij_upper, s.ij_upper))
+        p = Problem(T0, Z_inv, g.edges[:, 0], g.edges[:, 1], info.astype(dt), robust.reshape(-1), s, None, band)
+        state, cost0 = _iterate(p, solver, linear)
     poses = se2_to_poses(jaxlie.SE2(state.T))
     a0_T_b0 = _between(poses[0], poses[1])
     return poses, a0_T_b0, cost0, state.cost, state.it, state.converged

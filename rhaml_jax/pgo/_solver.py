@@ -73,32 +73,23 @@ def _normal_eqs(T, p: Problem, cfg: SolverConfig):
     return assemble(lin, w[:, None, None] * p.info, p.struct)
 
 
-def _iterate(p: Problem, cfg: SolverConfig, linear: str):
-    """The solver loop; traceable (usable inside a caller's jit). Returns (state, cost0)."""
-    dt = p.T0.dtype
-    nv = p.struct.var_of_node.shape[0] - 1
+def lm_loop(T0, cost_fn, step_fn, cfg: SolverConfig):
+    """The GN / LM loop as one `lax.while_loop`; traceable. cost_fn(T) -> cost;
+    step_fn(T, lam) -> (delta (N, 3) per node, zero on the gauge; g . delta; sum damp delta^2)
+    for the damped normal equations at T. Returns (final state, initial cost)."""
+    dt = T0.dtype
     lam0 = jnp.asarray(cfg.lambda_initial if cfg.method == "lm" else 0.0, dt)
-    cost0 = _cost(p.T0, p, cfg)
+    cost0 = cost_fn(T0)
 
     def body(s: _State) -> _State:
         # relinearised every iteration (also after a rejected step: cheap next to the solve)
-        blocks, g = _normal_eqs(s.T, p, cfg)
-        diag = jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1)  # (nv, 3)
-        floor = 1e-9 * jnp.max(diag) + jnp.finfo(dt).tiny
-        damp = s.lam * jnp.maximum(diag, floor)
-        if linear == "dense":
-            delta = solve_dense(blocks, g, damp, p.struct)
-        elif linear == "banded":
-            delta = solve_banded(blocks, g, damp, p.band)
-        else:
-            delta = solve_sparse(blocks, g, damp, p.layout)
+        delta, g_delta, damp_dd = step_fn(s.T, s.lam)
         step_ok = jnp.all(jnp.isfinite(delta))
         delta = jnp.where(step_ok, delta, 0.0)
-        full = jnp.concatenate([delta, jnp.zeros((1, 3), dt)])[p.struct.var_of_node]  # (N, 3)
-        T_new = retract(s.T, full)
-        cost_new = _cost(T_new, p, cfg)
-        gd = -jnp.sum(g * delta)  # > 0 for a descent direction
-        predicted = 0.5 * gd + 0.5 * jnp.sum(damp * delta * delta)  # decrease of the local model
+        T_new = retract(s.T, delta)
+        cost_new = cost_fn(T_new)
+        gd = -jnp.where(step_ok, g_delta, 0.0)  # > 0 for a descent direction
+        predicted = 0.5 * gd + 0.5 * jnp.where(step_ok, damp_dd, 0.0)  # decrease of the local model
         ok = step_ok & jnp.isfinite(cost_new) & (cost_new < s.cost) & (gd > 0)
         tol = jnp.maximum(cfg.relative_tolerance * s.cost, cfg.absolute_tolerance)
         small = ok & (s.cost - cost_new <= tol)
@@ -117,9 +108,35 @@ def _iterate(p: Problem, cfg: SolverConfig, linear: str):
         done = converged | (it >= cfg.max_iterations)
         return _State(T, cost, lam, it, s.accepted + ok.astype(jnp.int32), done, converged)
 
-    init = _State(p.T0, cost0, lam0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32),
+    init = _State(T0, cost0, lam0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32),
                   ~jnp.isfinite(cost0), jnp.asarray(False))
     return jax.lax.while_loop(lambda s: ~s.done, body, init), cost0
+
+
+def damping(diag, lam):
+    """lam * diag(H), each entry floored at 1e-9 max diag(H) (so a zero pivot gets damped)."""
+    floor = 1e-9 * jnp.max(diag) + jnp.finfo(diag.dtype).tiny
+    return lam * jnp.maximum(diag, floor)
+
+
+def _iterate(p: Problem, cfg: SolverConfig, linear: str):
+    """The solver loop; traceable (usable inside a caller's jit). Returns (state, cost0)."""
+    dt = p.T0.dtype
+    nv = p.struct.var_of_node.shape[0] - 1
+
+    def step(T, lam):
+        blocks, g = _normal_eqs(T, p, cfg)
+        damp = damping(jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1), lam)  # (nv, 3)
+        if linear == "dense":
+            delta = solve_dense(blocks, g, damp, p.struct)
+        elif linear == "banded":
+            delta = solve_banded(blocks, g, damp, p.band)
+        else:
+            delta = solve_sparse(blocks, g, damp, p.layout)
+        full = jnp.concatenate([delta, jnp.zeros((1, 3), dt)])[p.struct.var_of_node]  # (N, 3)
+        return full, jnp.sum(g * delta), jnp.sum(damp * delta * delta)
+
+    return lm_loop(p.T0, lambda T: _cost(T, p, cfg), step, cfg)
 
 
 def _run(p: Problem, cfg: SolverConfig, linear: str):
