@@ -19,18 +19,20 @@ import jax.numpy as jnp
 from ._banded import pcr_solve, thomas_solve
 from ._residuals import linearize
 from ._robust import robust_rho_and_weight
-from ._solver import Problem, _cost, damping, lm_loop
+from ._solver import Problem, damping, lm_loop
 from ._types import SolverConfig
 
 __all__ = ["ladder_iterate"]
 
 
 def _weights(r, info, robust_edges, cfg: SolverConfig):
-    if cfg.robust == "none":
-        return info
+    """(robust-weighted information (E, 3, 3), cost 0.5 sum rho)."""
     s2 = jnp.einsum("ea,eab,eb->e", r, info, r)
-    _, w = robust_rho_and_weight(s2, cfg.robust, cfg.robust_delta)
-    return jnp.where(robust_edges, w, 1.0)[:, None, None] * info
+    if cfg.robust == "none":
+        return info, 0.5 * jnp.sum(s2)
+    rho, w = robust_rho_and_weight(s2, cfg.robust, cfg.robust_delta)
+    cost = 0.5 * jnp.sum(jnp.where(robust_edges, rho, s2))
+    return jnp.where(robust_edges, w, 1.0)[:, None, None] * info, cost
 
 
 def _blockdiag(a, b):
@@ -40,11 +42,12 @@ def _blockdiag(a, b):
 
 def ladder_normal_equations(T, p: Problem, a_observes, cfg: SolverConfig):
     """H in block-tridiagonal form: D (K+1, 6, 6) without damping, Lo (K+1, 6, 6) with
-    Lo[m] = A[m, m-1] (Lo[0] = 0), g (K+1, 6) = J^T W r; gauge rows and columns cleared."""
+    Lo[m] = A[m, m-1] (Lo[0] = 0), g (K+1, 6) = J^T W r (gauge rows and columns cleared),
+    and the cost 0.5 sum rho at T."""
     K = a_observes.shape[0]
     dt = T.dtype
     lin = linearize(T, p.Z_inv, p.ei, p.ej)
-    W = _weights(lin.r, p.info, p.robust_edges, cfg)
+    W, cost = _weights(lin.r, p.info, p.robust_edges, cfg)
     JiT = jnp.swapaxes(lin.J_i, -1, -2)
     JjT = jnp.swapaxes(lin.J_j, -1, -2)
     WJi, WJj = W @ lin.J_i, W @ lin.J_j
@@ -73,7 +76,7 @@ def ladder_normal_equations(T, p: Problem, a_observes, cfg: SolverConfig):
                          jnp.concatenate([jnp.swapaxes(m_ab, -1, -2), Hn[:, 1]], -1)], -2)
     Lo = front(_blockdiag(Hji[:, 0], Hji[:, 1]))
     Lo = Lo.at[1, :, :3].set(0.0)  # coupling of group 1 to A_0
-    return D, Lo, gn.reshape(K + 1, 6)
+    return D, Lo, gn.reshape(K + 1, 6), cost
 
 
 def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig, tridiagonal: str = "thomas"):
@@ -82,8 +85,12 @@ def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig, tridiagonal: str =
     K = a_observes.shape[0]
     gauge = jnp.zeros((K + 1, 6), bool).at[0, :3].set(True)
 
-    def step(T, lam):
-        D, Lo, g = ladder_normal_equations(T, p, a_observes, cfg)
+    def lin(T):
+        D, Lo, g, cost = ladder_normal_equations(T, p, a_observes, cfg)
+        return (D, Lo, g), cost
+
+    def solve(system, lam):
+        D, Lo, g = system
         diag = jnp.where(gauge, 0.0, jnp.diagonal(D, axis1=-2, axis2=-1))
         damp = jnp.where(gauge, 0.0, damping(diag, lam))  # (K+1, 6)
         D = D + damp[:, :, None] * jnp.eye(6, dtype=D.dtype)
@@ -96,4 +103,4 @@ def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig, tridiagonal: str =
         x = jnp.where(gauge, 0.0, x)
         return x.reshape(2 * K + 2, 3), jnp.sum(g * x), jnp.sum(damp * x * x)
 
-    return lm_loop(p.T0, lambda T: _cost(T, p, cfg), step, cfg)
+    return lm_loop(p.T0, lin, solve, cfg)

@@ -110,12 +110,17 @@ def linearize(T: jax.Array, Z_inv: jax.Array, i: jax.Array, j: jax.Array) -> Lin
 def exp(delta: jax.Array) -> jax.Array:
     """SE(2) Exp of (..., 3) tangents -> parameter arrays (..., 4)."""
     vx, vy, theta = jnp.moveaxis(delta, -1, 0)
+    c, s = jnp.cos(theta), jnp.sin(theta)
     small = jnp.abs(theta) < 1e-2
     safe = jnp.where(small, 1.0, theta)
     t2 = theta * theta
-    sin_t = jnp.where(small, 1.0 - t2 / 6.0 + t2 * t2 / 120.0, jnp.sin(safe) / safe)  # sin(t)/t
-    cos_t = jnp.where(small, theta / 2.0 - theta * t2 / 24.0, 2.0 * jnp.sin(0.5 * safe) ** 2 / safe)  # (1-cos)/t
-    c, s = jnp.cos(theta), jnp.sin(theta)
+    sin_t = jnp.where(small, 1.0 - t2 / 6.0 + t2 * t2 / 120.0, s / safe)  # sin(t)/t
+    # (1 - cos t)/t = sin^2 t / ((1 + cos t) t): no cancellation, no further sin / cos call
+    # (which XLA expands inline: fewer of them compile faster); (1 - cos t)/t next to t = pi
+    one_c = 1.0 + c
+    far = one_c < 1e-3
+    cos_t = jnp.where(small, theta / 2.0 - theta * t2 / 24.0,
+                      jnp.where(far, (1.0 - c) / safe, s * s / (jnp.where(far, 1.0, one_c) * safe)))
     return jnp.stack([c, s, sin_t * vx - cos_t * vy, cos_t * vx + sin_t * vy], -1)
 
 

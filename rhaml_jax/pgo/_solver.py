@@ -44,6 +44,8 @@ class Problem(NamedTuple):
 
 class _State(NamedTuple):
     T: jax.Array  # (N, 4)
+    system: object  # the normal equations at T (solver-specific pytree)
+    cost0: jax.Array  # () the initial cost
     cost: jax.Array  # ()
     lam: jax.Array  # ()
     it: jax.Array  # () int32
@@ -69,25 +71,37 @@ def _rho_w(s2, p: Problem, cfg: SolverConfig):
 def _normal_eqs(T, p: Problem, cfg: SolverConfig):
     lin = linearize(T, p.Z_inv, p.ei, p.ej)
     s2 = jnp.einsum("ea,eab,eb->e", lin.r, p.info, lin.r)
-    _, w = _rho_w(s2, p, cfg)
-    return assemble(lin, w[:, None, None] * p.info, p.struct)
+    rho, w = _rho_w(s2, p, cfg)
+    blocks, g = assemble(lin, w[:, None, None] * p.info, p.struct)
+    return blocks, g, 0.5 * jnp.sum(rho)
 
 
-def lm_loop(T0, cost_fn, step_fn, cfg: SolverConfig):
-    """The GN / LM loop as one `lax.while_loop`; traceable. cost_fn(T) -> cost;
-    step_fn(T, lam) -> (delta (N, 3) per node, zero on the gauge; g . delta; sum damp delta^2)
-    for the damped normal equations at T. Returns (final state, initial cost)."""
+def lm_loop(T0, linearize_fn, solve_fn, cfg: SolverConfig):
+    """The GN / LM loop as one `lax.while_loop`; traceable.
+
+    linearize_fn(T) -> (system, cost): the normal equations at T (any pytree) and the cost
+    there, from the same residuals; solve_fn(system, lam) -> (delta (N, 3) per node, zero on
+    the gauge; g . delta; sum damp delta^2). Each iteration solves the carried system, retracts
+    and linearises once at the candidate, which gives its cost too: one residual evaluation
+    per iteration and a single copy of the residual code in the loop (compile time). A
+    rejected candidate's system is dropped. Returns (final state, initial cost)."""
     dt = T0.dtype
     lam0 = jnp.asarray(cfg.lambda_initial if cfg.method == "lm" else 0.0, dt)
-    cost0 = cost_fn(T0)
+    # iteration 0 only linearises at T0 (its solve is skipped by `lax.cond`), so the residual
+    # code appears once in the program
+    sys_shape, _ = jax.eval_shape(linearize_fn, T0)
+    sys_init = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), sys_shape)
+    n = T0.shape[0]
 
     def body(s: _State) -> _State:
-        # relinearised every iteration (also after a rejected step: cheap next to the solve)
-        delta, g_delta, damp_dd = step_fn(s.T, s.lam)
+        first = s.it == 0
+        delta, g_delta, damp_dd = jax.lax.cond(
+            first, lambda: (jnp.zeros((n, 3), dt), jnp.zeros((), dt), jnp.zeros((), dt)),
+            lambda: solve_fn(s.system, s.lam))
         step_ok = jnp.all(jnp.isfinite(delta))
         delta = jnp.where(step_ok, delta, 0.0)
-        T_new = retract(s.T, delta)
-        cost_new = cost_fn(T_new)
+        T_new = jnp.where(first, s.T, retract(s.T, delta))
+        sys_new, cost_new = linearize_fn(T_new)
         gd = -jnp.where(step_ok, g_delta, 0.0)  # > 0 for a descent direction
         predicted = 0.5 * gd + 0.5 * jnp.where(step_ok, damp_dd, 0.0)  # decrease of the local model
         ok = step_ok & jnp.isfinite(cost_new) & (cost_new < s.cost) & (gd > 0)
@@ -96,21 +110,26 @@ def lm_loop(T0, cost_fn, step_fn, cfg: SolverConfig):
         # an undamped finite step that cannot decrease the cost by more than the tolerance:
         # we are at the minimum already (rounding makes such steps fail)
         flat = step_ok & ~ok & (predicted <= tol) & (s.lam == 0 if cfg.method == "gn" else True)
+        ok = ok | first
         T = jnp.where(ok, T_new, s.T)
+        system = jax.tree.map(lambda a, b: jnp.where(ok, a, b), sys_new, s.system)
         cost = jnp.where(ok, cost_new, s.cost)
         lam_up = jnp.where(s.lam > 0, s.lam * cfg.lambda_factor, jnp.asarray(cfg.lambda_initial, dt))
         lam_down = s.lam / cfg.lambda_factor
         if cfg.method == "gn":
             lam_down = jnp.where(lam_down < cfg.lambda_initial, 0.0, lam_down)
-        lam = jnp.where(ok, lam_down, lam_up)
+        lam = jnp.where(first, s.lam, jnp.where(ok, lam_down, lam_up))
         it = s.it + 1
-        converged = small | flat | (lam > cfg.max_lambda)
-        done = converged | (it >= cfg.max_iterations)
-        return _State(T, cost, lam, it, s.accepted + ok.astype(jnp.int32), done, converged)
+        converged = ~first & (small | flat | (lam > cfg.max_lambda))
+        done = converged | (it > cfg.max_iterations) | (first & ~jnp.isfinite(cost_new))
+        return _State(T, system, jnp.where(first, cost_new, s.cost0), cost, lam, it,
+                      s.accepted + (ok & ~first).astype(jnp.int32), done, converged)
 
-    init = _State(T0, cost0, lam0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32),
-                  ~jnp.isfinite(cost0), jnp.asarray(False))
-    return jax.lax.while_loop(lambda s: ~s.done, body, init), cost0
+    inf = jnp.asarray(jnp.inf, dt)
+    init = _State(T0, sys_init, inf, inf, lam0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32),
+                  jnp.asarray(False), jnp.asarray(False))
+    s = jax.lax.while_loop(lambda s: ~s.done, body, init)
+    return s._replace(it=s.it - 1), s.cost0
 
 
 def damping(diag, lam):
@@ -124,8 +143,12 @@ def _iterate(p: Problem, cfg: SolverConfig, linear: str):
     dt = p.T0.dtype
     nv = p.struct.var_of_node.shape[0] - 1
 
-    def step(T, lam):
-        blocks, g = _normal_eqs(T, p, cfg)
+    def lin(T):
+        blocks, g, cost = _normal_eqs(T, p, cfg)
+        return (blocks, g), cost
+
+    def solve(system, lam):
+        blocks, g = system
         damp = damping(jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1), lam)  # (nv, 3)
         if linear == "dense":
             delta = solve_dense(blocks, g, damp, p.struct)
@@ -136,7 +159,7 @@ def _iterate(p: Problem, cfg: SolverConfig, linear: str):
         full = jnp.concatenate([delta, jnp.zeros((1, 3), dt)])[p.struct.var_of_node]  # (N, 3)
         return full, jnp.sum(g * delta), jnp.sum(damp * delta * delta)
 
-    return lm_loop(p.T0, lambda T: _cost(T, p, cfg), step, cfg)
+    return lm_loop(p.T0, lin, solve, cfg)
 
 
 def _run(p: Problem, cfg: SolverConfig, linear: str):
