@@ -113,12 +113,13 @@ CPU_RATIONALE = """\
 `cpu` config: input 128 x 160 (H x W), the 480 x 640 camera image at 0.25 x 0.267 (close to
 its 4:3 aspect; divisible by the network's stride 32, final grid 4 x 5); widths (32, 64, 128,
 256) = 1/3 of the paper's; depths (2, 2, 6, 2); the paper's dense ACN with K = {3, 5, 7}, so
-the Table II question can still be asked at this size; neck 256 -> 256 -> 256; layer scale
-initialised at 0.1 instead of 1e-6 (a short training run cannot afford residual branches that
-start switched off).  About 0.2 GMACs and 2 M parameters: a training step runs at a few tens of
-images/s here (BENCHMARKS.md), i.e. roughly 100-200 k images (1-2 paper epochs of 80 k) in two
-hours.  The robot at the far end of the scenarios (7 m) still spans about 6 x 4 pixels at
-this input size, the smallest size at which its silhouette is more than a blob."""
+the Table II question can still be asked at this size (cpu_k0, cpu_k3, cpu_k35); neck
+256 -> 256 -> 256; layer scale initialised at 0.1 instead of 1e-6 (a short run cannot afford
+residual branches that start switched off).  2.09 M parameters, 0.139 GMACs (64x fewer than
+`paper`).  Its training step measured 8.8 images/s at batch 32 with the machine under load
+6-7 (matmul at 16 of ~88 GMAC/s quiet; BENCHMARKS.md), i.e. >= 60 k images (about one paper
+epoch of 80 k) in two hours even then.  The robot at the far end of the scenarios (7 m) still
+spans about 6 x 4 pixels at this input size."""
 
 
 def _amlnet(name: str, **kw) -> AMLNetConfig:
