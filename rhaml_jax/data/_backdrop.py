@@ -163,35 +163,36 @@ def room_image(room: RoomLook, light: Light, K: np.ndarray, width: int, height: 
     """
     x0, x1, y0, y1 = room.bounds
     ox, oy, opsi = (float(v) for v in observer_xypsi)
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    ray_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # z = 1
-    c, s = np.cos(opsi), np.sin(opsi)
-    R_world_robot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    d = ray_cam @ (R_world_robot @ R_ROBOT_OPTICAL).T  # world direction, optical depth 1 per unit t
-    o = np.array([ox, oy, camera_height])
-    # Exit distance through each face of the box (the camera is inside): t = (plane - o) / d.
+    u = ((np.arange(width, dtype=np.float32) - K[0, 2]) / K[0, 0])[None, :]  # (1, W) optical x / z
+    v = ((np.arange(height, dtype=np.float32) - K[1, 2]) / K[1, 1])[:, None]  # (H, 1) optical y / z
+    c, s = np.float32(np.cos(opsi)), np.float32(np.sin(opsi))
+    # World direction of the ray through each pixel, scaled so its optical depth is 1:
+    # robot frame (x fwd, y left, z up) = (1, -u, -v), rotated by the observer's heading.
+    dx = np.broadcast_to(c + s * u, (height, width))
+    dy = np.broadcast_to(s - c * u, (height, width))
+    dz = np.broadcast_to(-v, (height, width))
+    o = (np.float32(ox), np.float32(oy), np.float32(camera_height))
+    # Exit distance through each face of the box (the camera is inside): t = (plane - o) / d,
+    # kept as a running minimum with the index of the face it came from.
+    t = np.full((height, width), np.inf, np.float32)
+    face = np.zeros((height, width), np.int8)
+    planes = ((dz, 0.0, o[2], -1), (dz, room.height, o[2], 1), (dx, x0, o[0], -1), (dx, x1, o[0], 1), (dy, y0, o[1], -1), (dy, y1, o[1], 1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        cand = np.stack([
-            np.where(d[..., 2] < 0, (0.0 - o[2]) / d[..., 2], np.inf),  # floor
-            np.where(d[..., 2] > 0, (room.height - o[2]) / d[..., 2], np.inf),  # ceiling
-            np.where(d[..., 0] < 0, (x0 - o[0]) / d[..., 0], np.inf),
-            np.where(d[..., 0] > 0, (x1 - o[0]) / d[..., 0], np.inf),
-            np.where(d[..., 1] < 0, (y0 - o[1]) / d[..., 1], np.inf),
-            np.where(d[..., 1] > 0, (y1 - o[1]) / d[..., 1], np.inf),
-        ])
-    face = np.argmin(cand, axis=0)
-    t = np.take_along_axis(cand, face[None], 0)[0]
-    p = o + d * t[..., None]
-    normals = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], np.float64)
+        for f, (d, plane, origin, sign) in enumerate(planes):
+            tf = (np.float32(plane) - origin) / d
+            better = (sign * d > 0) & (tf < t)
+            t = np.where(better, tf, t)
+            face = np.where(better, np.int8(f), face)
+    px, py, pz = o[0] + dx * t, o[1] + dy * t, o[2] + dz * t
+    normals = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], np.float32)
     # Surface coordinates of each face, in metres.
-    st = [(p[..., 0], p[..., 1]), (p[..., 0], p[..., 1]), (p[..., 1], p[..., 2]), (p[..., 1], p[..., 2]),
-          (p[..., 0], p[..., 2]), (p[..., 0], p[..., 2])]
+    st = [(px, py), (px, py), (py, pz), (py, pz), (px, pz), (px, pz)]
     rgb = np.zeros((height, width, 3), np.float32)
-    ldir = np.asarray(light.direction)
+    ldir = np.asarray(light.direction, np.float32)
     for f in range(6):
         sel = face == f
         if not np.any(sel):
             continue
         shade = light.ambient + light.diffuse * max(0.0, float(normals[f] @ ldir))
         rgb[sel] = room.textures[f](st[f][0][sel], st[f][1][sel]) * shade
-    return np.clip(rgb, 0.0, 1.0), t.astype(np.float32)  # t is the optical depth (ray z = 1)
+    return np.clip(rgb, 0.0, 1.0), t  # t is the optical depth (rays have z = 1 in the optical frame)

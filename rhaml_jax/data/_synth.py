@@ -143,12 +143,12 @@ def compose(layers) -> tuple[np.ndarray, list[np.ndarray]]:
 
     Returns (rgb uint8, the visible part of each layer's mask).
     """
-    depth = np.stack([np.where(m, d, np.inf) for _, m, d in layers])
-    front = np.argmin(depth, axis=0)
-    rgb = np.zeros(layers[0][0].shape, np.float32)
-    for i, (c, _, _) in enumerate(layers):
-        sel = front == i
-        rgb[sel] = c[sel]
+    rgb = np.array(layers[0][0], np.float32)
+    depth = np.array(layers[0][2], np.float32)
+    front = np.zeros(depth.shape, np.int8)
+    for i, (c, m, d) in enumerate(layers[1:], 1):
+        sel = m & (d < depth)
+        rgb[sel], depth[sel], front[sel] = c[sel], d[sel], i
     return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), [front == i for i in range(len(layers))]
 
 
