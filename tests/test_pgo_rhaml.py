@@ -8,16 +8,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.pgo import (
-    RhamlPGOConfig, Rendezvous, SolverConfig, calculate_information_matrix, construct_pose_graph,
-    delete_erroneous_nodes, format_g2o, observation_from_xy_yaw_rp, parse_g2o, rhaml_pgo, rhaml_pose_graph,
+    RhamlPGOConfig, Rendezvous, SolverConfig,
+    delete_erroneous_nodes, format_g2o, observation_from_xy_yaw_rp, parse_g2o, rhaml_pgo_jit, rhaml_pose_graph,
 )
+from rhaml_jax.pgo._rhaml_graph import _prepare
 from rhaml_jax.pgo._simulate import simulate_rendezvous
 
-K = 40
-_pgo = jax.jit(rhaml_pgo, static_argnames="config")
+K = 40  # the same size in test_pgo_gtsam.py: one compiled rhaml_pgo_jit for both
+_pgo = rhaml_pgo_jit
+_delete = jax.jit(delete_erroneous_nodes, static_argnums=1)
 
 
 @pytest.fixture(autouse=True)
@@ -33,10 +36,11 @@ def _dev(rv):
 def test_delete_erroneous_nodes_drops_tilted_and_keeps_time_order():
     sim = simulate_rendezvous(K, seed=4, tilted_fraction=0.25)
     rv = _dev(sim.rendezvous)
-    R = jax.vmap(lambda q: jnp.stack([q.compute_roll_radians(), q.compute_pitch_radians()]))(
-        jax.tree.map(lambda a: a, __import__("jaxlie").SE3(rv.observation).rotation()))
-    expect = np.all(np.abs(np.asarray(R)) <= np.deg2rad(10), axis=1)
-    compact, valid, keep = delete_erroneous_nodes(rv, 10.0)
+    # roll, pitch from an independent implementation (R = Rz(yaw) Ry(pitch) Rx(roll))
+    q = np.asarray(sim.rendezvous.observation)[:, :4]  # wxyz
+    rpy = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("xyz")
+    expect = np.all(np.abs(rpy[:, :2]) <= np.deg2rad(10), axis=1)
+    compact, valid, keep = _delete(rv, 10.0)
     np.testing.assert_array_equal(keep, expect)
     n = int(valid.sum())
     assert n == expect.sum() == K - 10
@@ -54,9 +58,9 @@ def test_graph_sizes_edges_and_information():
     g = rhaml_pose_graph(sim.rendezvous, cfg)
     n = K - 4
     assert g.num_nodes == 2 * (1 + n) and g.num_edges == 3 * n
-    compact, valid, _ = delete_erroneous_nodes(_dev(sim.rendezvous))
-    arrays = construct_pose_graph(compact, valid)
-    info = np.asarray(calculate_information_matrix(arrays, 80.0, 0.25))
+    # delete_erroneous_nodes, construct_pose_graph, calculate_information_matrix, jitted together
+    _, arrays, info = _prepare(_dev(sim.rendezvous), 10.0, 80.0, 0.25)
+    info = np.asarray(info)
     rp = np.asarray(arrays.roll_pitch)
     for k in range(n):
         a, b, m = 3 * k, 3 * k + 1, 3 * k + 2
@@ -66,10 +70,10 @@ def test_graph_sizes_edges_and_information():
         np.testing.assert_allclose(info[m], np.diag([km, km, 0.25 * km]))
         A_k, B_k = 2 * (k + 1), 2 * (k + 1) + 1
         assert tuple(g.edges[a]) == (A_k - 2, A_k) and tuple(g.edges[b]) == (B_k - 2, B_k)
-        observer_a = bool(np.asarray(compact.a_observes)[k])
+        observer_a = bool(np.asarray(arrays.a_observes)[k])
         assert tuple(g.edges[m]) == ((A_k, B_k) if observer_a else (B_k, A_k))
     assert np.all(info[3 * n :] [2::3] == 0)  # padded mutual edges carry nothing
-    assert set(np.asarray(compact.a_observes)[:n]) == {True, False}  # both robots observe
+    assert set(np.asarray(arrays.a_observes)[:n]) == {True, False}  # both robots observe
     # exportable: g2o text round trip
     h = parse_g2o(format_g2o(g), "rhaml")
     np.testing.assert_allclose(h.information, g.information)

@@ -121,7 +121,7 @@ def test_singular_system_is_damped_not_nan(x64):
     info[5] = np.diag([1e-30, 1e-30, 1e-30]) + 0.0
     bad = g._replace(information=info, poses=g.poses + np.array([1e6, -1e6, 3.0]) * (np.arange(g.num_nodes) % 2)[:, None])
     bad = bad._replace(poses=np.where(np.arange(g.num_nodes)[:, None] == 0, g.poses, bad.poses))
-    r = optimize(bad, SolverConfig(linear_solver="banded", max_iterations=50))
+    r = optimize(bad, SolverConfig(linear_solver="banded"))  # same executable as the other ladder tests
     assert np.isfinite(r.poses).all() and np.isfinite(r.final_cost)
     assert r.final_cost <= r.initial_cost
 

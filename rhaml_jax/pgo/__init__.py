@@ -8,7 +8,8 @@ Public API:
 - `graph_cost(graph, poses)`: GTSAM's cost 0.5 sum r^T Lambda r, r = Log(z^-1 x_i^-1 x_j).
 - `chordal_initialization(graph)`: rotations then translations by linear least squares.
 - RHAML (Algorithm 1): `Rendezvous`, `RhamlPGOConfig`, `delete_erroneous_nodes`,
-  `construct_pose_graph`, `calculate_information_matrix`, `global_optimization`, `rhaml_pgo`,
+  `construct_pose_graph`, `calculate_information_matrix`, `global_optimization`, `rhaml_pgo`
+  (`rhaml_pgo_jit`: the same, jit-compiled and shared),
   `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
 """
 
@@ -24,6 +25,7 @@ from ._rhaml_graph import (
     global_optimization,
     observation_from_xy_yaw_rp,
     rhaml_pgo,
+    rhaml_pgo_jit,
     rhaml_pose_graph,
 )
 from ._solver import graph_cost, optimize
@@ -35,6 +37,6 @@ __all__ = [
     "read_g2o", "write_g2o", "parse_g2o", "format_g2o", "validate_graph",
     "optimize", "graph_cost", "chordal_initialization",
     "Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "delete_erroneous_nodes", "construct_pose_graph",
-    "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pose_graph",
+    "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pgo_jit", "rhaml_pose_graph",
     "observation_from_xy_yaw_rp",
 ]

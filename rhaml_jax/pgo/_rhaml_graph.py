@@ -22,6 +22,7 @@ and what the information matrices of eqs. 9-10 are for.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -38,7 +39,7 @@ from ._solver import Problem, _iterate
 from ._types import PoseGraph, SolverConfig
 
 __all__ = ["Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "PoseGraphArrays", "delete_erroneous_nodes",
-           "construct_pose_graph", "calculate_information_matrix", "global_optimization", "rhaml_pgo",
+           "construct_pose_graph", "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pgo_jit",
            "rhaml_pose_graph", "observation_from_xy_yaw_rp"]
 
 
@@ -241,6 +242,10 @@ def rhaml_pgo(rv: Rendezvous, config: RhamlPGOConfig = RhamlPGOConfig()) -> Rham
     return RhamlPGOResult(pr[:, 0], pr[:, 1], a0b0, F, jnp.sum(valid).astype(jnp.int32), keep, c0, c1, it, conv)
 
 
+rhaml_pgo_jit = jax.jit(rhaml_pgo, static_argnames="config")
+"""`rhaml_pgo` jit-compiled: one executable per input shape and config, shared by all callers."""
+
+
 def _check_rendezvous(rv: Rendezvous) -> None:
     K = int(np.shape(rv.observation)[0])
     check_shape("rendezvous.odom_a", rv.odom_a, (K + 1, 3))
@@ -253,18 +258,26 @@ def _check_rendezvous(rv: Rendezvous) -> None:
         raise RhamlError("rendezvous: at least one observation is needed")
 
 
+@functools.partial(jax.jit, static_argnums=(1, 2, 3))
+def _prepare(rv: Rendezvous, sigma_deg: float, kappa: float, tau: float):
+    """DeleteErroneousNodes, ConstructPoseGraph and CalculateInformationMatrix, compiled once
+    per shape (run op by op they would compile every primitive separately)."""
+    compact, valid, _ = delete_erroneous_nodes(rv, sigma_deg)
+    g = construct_pose_graph(compact, valid)
+    return valid, g, calculate_information_matrix(g, kappa, tau)
+
+
 def rhaml_pose_graph(rv: Rendezvous, config: RhamlPGOConfig = RhamlPGOConfig()) -> PoseGraph:
     """Host side: the paper's graph without padding (2(1 + n) nodes, 3 n edges for n kept
     observations) as a PoseGraph with its initial guess, e.g. for `write_g2o` or GTSAM.
     Vertex ids: A_k = 2k, B_k = 2k + 1."""
     _check_rendezvous(rv)
-    compact, valid, _ = delete_erroneous_nodes(rv, config.sigma_deg)
+    rv = jax.tree.map(jnp.asarray, rv)
+    valid, g, info = _prepare(rv, config.sigma_deg, config.kappa, config.tau)
     n = int(np.sum(np.asarray(valid)))
     if n == 0:
         raise RhamlError(f"rendezvous: every observation has |roll| or |pitch| > {config.sigma_deg} deg "
                          "(or is not finite): no mutual edge is left to link the robots")
-    g = construct_pose_graph(compact, valid)
-    info = calculate_information_matrix(g, config.kappa, config.tau)
     N = 2 * (n + 1)
     robust = np.zeros((n, 3), bool)
     robust[:, 2] = True

@@ -291,4 +291,7 @@ def graph_cost(graph: PoseGraph, poses: np.ndarray | None = None, robust: str = 
     p = Problem(T, Z_inv, e[:, 0], e[:, 1], jnp.asarray(graph.information, dtype), _robust_edges(graph),
                 None, None, None)
     cfg = SolverConfig(robust=robust, robust_delta=robust_delta)
-    return float(_cost(T, p, cfg))
+    return float(_cost_jit(T, p, cfg))
+
+
+_cost_jit = jax.jit(_cost, static_argnames="cfg")  # op by op, each primitive would compile apart
