@@ -20,6 +20,9 @@ case "$what" in
     ;;
   test)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev]'
+    # XLA compiles dominate the suite; a persistent cache makes reruns on this machine fast.
+    export JAX_COMPILATION_CACHE_DIR="${JAX_COMPILATION_CACHE_DIR:-$HOME/.cache/rhaml_jax/xla}"
+    export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="${JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS:-1}"
     exec .venv/bin/python -m pytest -q "$@"
     ;;
   *)
