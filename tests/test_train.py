@@ -159,3 +159,16 @@ def test_cli_errors(tmp_path):
     if importlib.util.find_spec("rhaml_jax.data") is None:
         r = run("--stage", "amlnet", "--config", "cpu", "--out", str(tmp_path / "x"))
         assert r.returncode == 2 and "rhaml_jax.data" in r.stderr
+
+
+def test_exported_weights_load_without_optimizer_state(reference_run, tmp_path):
+    from rhaml_jax.amlnet.checkpoint import export_weights
+
+    out, res = reference_run
+    export_weights(out, tmp_path / "ship", extra_meta={"note": "test"})
+    size = lambda d: sum(p.stat().st_size for p in Path(d).rglob("*") if p.is_file())  # noqa: E731
+    assert size(tmp_path / "ship") < 0.6 * size(out / "checkpoints") / 2  # one step, no Adam moments
+    net, params, stats = load_model(tmp_path / "ship")
+    assert net.cfg == CFG
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(res["params"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

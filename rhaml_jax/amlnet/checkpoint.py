@@ -18,7 +18,7 @@ from rhaml_jax.amlnet.config import ModelConfig, config_from_dict, config_to_dic
 from rhaml_jax.amlnet.functional import Net, build
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["Checkpoints", "load_model"]
+__all__ = ["Checkpoints", "load_model", "export_weights"]
 
 
 class Checkpoints:
@@ -71,10 +71,31 @@ def load_model(run_dir: str | Path, step: int | None = None) -> tuple[Net, objec
         step = ck.latest_step() if step is None else step
         if step is None:
             raise RhamlError(f"{run_dir}: no checkpoint saved yet")
-        cfg = config_from_dict(ck.meta(step)["model_config"])
+        meta = ck.meta(step)
+        cfg = config_from_dict(meta["model_config"])
         net = build(cfg, abstract=True)
-        opt = jax.eval_shape(make_optimizer(1e-3, 2).init, net.params)
-        state = ck.restore(step, {"params": net.params, "batch_stats": net.batch_stats, "opt_state": opt})
+        like = {"params": net.params, "batch_stats": net.batch_stats}
+        if not meta.get("weights_only", False):  # a training run also holds the optimizer state
+            like["opt_state"] = jax.eval_shape(make_optimizer(1e-3, 2).init, net.params)
+        state = ck.restore(step, like)
     finally:
         ck.close()
     return net, state["params"], state["batch_stats"]
+
+
+def export_weights(run_dir: str | Path, out_dir: str | Path, step: int | None = None, extra_meta: dict | None = None) -> Path:
+    """Writes the weights of a run's checkpoint (no optimizer state: a third of the size) as a
+    checkpoint folder of the same layout, which `load_model` reads; returns `out_dir`."""
+    net, params, batch_stats = load_model(run_dir, step)
+    src = Checkpoints(run_dir, read_only=True)
+    try:
+        step = src.latest_step() if step is None else step
+        meta = dict(src.meta(step), weights_only=True, exported_from=str(run_dir), **(extra_meta or {}))
+    finally:
+        src.close()
+    dst = Checkpoints(out_dir, keep=1)
+    try:
+        dst.save(step, {"params": params, "batch_stats": batch_stats}, meta)
+    finally:
+        dst.close()
+    return Path(out_dir)
