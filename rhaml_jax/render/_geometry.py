@@ -41,29 +41,38 @@ class ScreenFaces(NamedTuple):
 
 
 def _clip_near(tri: jnp.ndarray, near: float):
-    """(F, 3, 3) camera-frame triangles -> (F, 4, 3) polygon of their part with z >= near, (F,) count."""
-    z = tri[..., 2]
-    ins = z >= near  # (F, 3)
-    a, b = tri, jnp.roll(tri, -1, axis=1)  # edge i goes from vertex i to vertex i+1
-    ina, inb = ins, jnp.roll(ins, -1, axis=1)
-    cross = ina != inb
-    den = b[..., 2] - a[..., 2]
-    # Guard: den is only used where the edge crosses the plane (den != 0 there); elsewhere
-    # a dummy 1 avoids 0/0 whose NaN would leak into gradients through jnp.where.
-    den = jnp.where(cross, den, 1.0)
-    t = jnp.clip((near - a[..., 2]) / den, 0.0, 1.0)
-    ip = a + t[..., None] * (b - a)
-    ip = ip.at[..., 2].set(jnp.where(cross, near, ip[..., 2]))
-    # Sutherland-Hodgman slots in order: a0, i01, a1, i12, a2, i20.
-    slots = jnp.stack([a, ip], axis=2).reshape(tri.shape[0], 6, 3)
-    ok = jnp.stack([ina, cross], axis=2).reshape(tri.shape[0], 6)
-    rank = jnp.cumsum(ok, axis=1) - 1  # output position of each kept slot
-    n = ok.sum(axis=1)  # 0, 3 or 4
-    sel = (ok[:, :, None] & (rank[:, :, None] == jnp.arange(4))).astype(tri.dtype)  # (F, 6, 4)
-    # One-hot gather as multiply + sum (differentiable; XLA's CPU dot on tiny batches is slow).
-    poly = jnp.sum(sel[:, :, :, None] * slots[:, :, None, :], axis=1)  # (F, 4, 3)
-    poly = poly.at[:, 3].set(jnp.where((n == 4)[:, None], poly[:, 3], poly[:, 2]))
-    return poly, n
+    """(F, 3, 3) camera-frame triangles -> (F, 4, 3) polygon of their part with z >= near, (F,) count.
+
+    Written vertex by vertex with selects and explicit sums (no reductions over small axes: on
+    XLA's CPU backend those ran 10-100x slower than the same sums written as adds).
+    """
+    v = [tri[:, i] for i in range(3)]  # (F, 3) each
+    ins = [vi[:, 2] >= near for vi in v]
+    slots, ok = [], []
+    for i in range(3):  # Sutherland-Hodgman slots in order: a0, i01, a1, i12, a2, i20
+        a, b = v[i], v[(i + 1) % 3]
+        cross = ins[i] != ins[(i + 1) % 3]
+        # Guard: den is only used where the edge crosses the plane (den != 0 there); elsewhere
+        # a dummy 1 avoids 0/0 whose NaN would leak into gradients through jnp.where.
+        den = jnp.where(cross, b[:, 2] - a[:, 2], 1.0)
+        t = jnp.clip((near - a[:, 2]) / den, 0.0, 1.0)
+        ip = a + t[:, None] * (b - a)
+        ip = jnp.concatenate([ip[:, :2], jnp.where(cross, near, ip[:, 2])[:, None]], 1)
+        slots += [a, ip]
+        ok += [ins[i], cross]
+    rank, n = [], jnp.zeros(tri.shape[0], jnp.int32)
+    for o in ok:
+        n = n + o.astype(jnp.int32)
+        rank.append(n - 1)  # output position of each kept slot
+    zero = jnp.zeros_like(v[0])
+    poly = []
+    for k in range(4):
+        out = zero
+        for sl, o, r in zip(slots, ok, rank):
+            out = jnp.where((o & (r == k))[:, None], sl, out)
+        poly.append(out)
+    poly[3] = jnp.where((n == 4)[:, None], poly[3], poly[2])  # n is 0, 3 or 4
+    return jnp.stack(poly, 1), n
 
 
 def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, near: float) -> ScreenFaces:
@@ -78,23 +87,25 @@ def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, 
         [(K[0, 0] * p[..., 0] + K[0, 1] * p[..., 1]) / zs + K[0, 2], K[1, 1] * p[..., 1] / zs + K[1, 2]], -1
     )
     uv = jnp.clip(uv, -COORD_LIMIT, COORD_LIMIT)
-    nxt = jnp.roll(uv, -1, axis=1)
-    area2 = jnp.sum(uv[..., 0] * nxt[..., 1] - nxt[..., 0] * uv[..., 1], axis=1)  # twice the signed area
+    x, y = [uv[:, i, 0] for i in range(4)], [uv[:, i, 1] for i in range(4)]
+    # twice the signed area
+    area2 = sum(x[i] * y[(i + 1) % 4] - x[(i + 1) % 4] * y[i] for i in range(4))
     valid = has & (jnp.abs(area2) > 2 * MIN_AREA_PX2)
 
     # Plane of the (unclipped) triangle: n.P = d; a ray P = z r with r = K^-1 [u, v, 1] hits it
     # at 1/z = (n . r) / d, affine in (u, v).
     nrm = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    nlen = jnp.sqrt(jnp.sum(nrm**2, -1))
+    nlen = jnp.sqrt(nrm[:, 0] ** 2 + nrm[:, 1] ** 2 + nrm[:, 2] ** 2)
     nrm = nrm / jnp.maximum(nlen, 1e-30)[:, None]  # guard: zero-area 3D faces (already invalid)
-    d = jnp.sum(nrm * tri[:, 0], -1)
+    d = nrm[:, 0] * tri[:, 0, 0] + nrm[:, 1] * tri[:, 0, 1] + nrm[:, 2] * tri[:, 0, 2]
     valid = valid & (jnp.abs(d) > 1e-9) & (nlen > 0)
     d_safe = jnp.where(jnp.abs(d) > 1e-9, d, 1.0)  # guard: plane through the camera centre
     Kinv = jnp.linalg.inv(K)
     inv_depth = (nrm @ Kinv) / d_safe[:, None]  # (n^T K^-1) [u, v, 1] / d
     normal = -jnp.sign(d_safe)[:, None] * nrm  # towards the camera (the camera is at the origin)
 
-    lo, hi = uv.min(axis=1), uv.max(axis=1)
+    lo = jnp.stack([jnp.minimum(jnp.minimum(c[0], c[1]), jnp.minimum(c[2], c[3])) for c in (x, y)], -1)
+    hi = jnp.stack([jnp.maximum(jnp.maximum(c[0], c[1]), jnp.maximum(c[2], c[3])) for c in (x, y)], -1)
     orient = jnp.where(valid, jnp.sign(area2), 0.0)
     return ScreenFaces(uv, orient, valid, inv_depth, normal, lo, hi)
 
@@ -102,4 +113,6 @@ def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, 
 def transform_points(T, points: jnp.ndarray) -> jnp.ndarray:
     """jaxlie SE3 (unbatched) applied to (V, 3) points."""
     R = T.rotation().as_matrix()
-    return points @ R.T + T.translation()
+    t = T.translation()
+    # Written as products and adds: XLA's CPU dot is slow on a (V, 3) x (3, 3) product.
+    return sum(points[:, i:i + 1] * R[:, i][None, :] for i in range(3)) + t

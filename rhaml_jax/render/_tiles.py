@@ -83,6 +83,59 @@ def chunk_pairs(lay: Layout, first, size: int, width: int, height: int, block: i
     return Pairs(face, px, py, index, used)
 
 
+def padded_size(width: int, height: int, block: int):
+    """(width, height) of the image padded so that every block of a `layout` fits inside."""
+    return width + block - 1, height + block - 1
+
+
+class Blocks(NamedTuple):
+    """C (face, block) pairs as per-pair (C,) int32 arrays: face (clamped to a real face for
+    unused slots), block origin x, y (px), and the numbers of the block's columns and rows that
+    are inside the face's box (0 for unused slots). Pixel (x + i, y + j) of the block is used
+    iff i < ncol and j < nrow."""
+
+    face: jnp.ndarray
+    x: jnp.ndarray
+    y: jnp.ndarray
+    ncol: jnp.ndarray
+    nrow: jnp.ndarray
+
+
+def chunk_blocks(lay: Layout, first, size: int, block: int) -> Blocks:
+    """The pairs of `chunk_pairs`, per pair (the per-pixel arrays are left to the consumer, so
+    that XLA's fused pixel loops see only broadcasts of (C,) arrays, no gathers)."""
+    slot = first + jnp.arange(size, dtype=jnp.int32)
+    face = jnp.searchsorted(lay.ends, slot, side="right").astype(jnp.int32)
+    live = slot < lay.needed
+    face = jnp.minimum(face, lay.ends.shape[0] - 1)
+    local = slot - lay.starts[face]
+    nbx = lay.nbx[face]
+    x = lay.x0[face] + (local % nbx) * block
+    y = lay.y0[face] + (local // nbx) * block
+    ncol = jnp.where(live, jnp.clip(lay.x1[face] - x + 1, 0, block), 0)
+    nrow = jnp.where(live, jnp.clip(lay.y1[face] - y + 1, 0, block), 0)
+    return Blocks(face, x, y, ncol, nrow)
+
+
+def block_pixels(b: Blocks, block: int, dtype):
+    """(C, B * B) pixel centres u, v (dtype) and used (bool) of the blocks, row-major."""
+    off = jnp.arange(block, dtype=jnp.int32)
+    ox = jnp.tile(off, block)[None, :]
+    oy = jnp.repeat(off, block)[None, :]
+    u = (b.x[:, None] + ox).astype(dtype)
+    v = (b.y[:, None] + oy).astype(dtype)
+    used = (ox < b.ncol[:, None]) & (oy < b.nrow[:, None])
+    return u, v, used
+
+
+def block_rows(b: Blocks, width: int, height: int, block: int):
+    """(C, B) flat index in the padded image of the first pixel of each block row (the row's
+    B pixels are contiguous there); out of range (dropped by scatters) for unused slots."""
+    wp, hp = padded_size(width, height, block)
+    start = (b.y[:, None] + jnp.arange(block, dtype=jnp.int32)[None, :]) * wp + b.x[:, None]
+    return jnp.where((b.ncol > 0)[:, None], start, wp * hp)
+
+
 def chunk_size(block: int, chunk_pixels: int) -> int:
     return max(1, chunk_pixels // (block * block))
 
