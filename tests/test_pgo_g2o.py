@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.pgo import PoseGraph, format_g2o, graph_cost, parse_g2o, read_g2o, validate_graph, write_g2o
+from rhaml_jax.pgo import graph_cost, parse_g2o, read_g2o, validate_graph, write_g2o
 from tests.conftest import shared_path
 
 REPO = Path(__file__).resolve().parents[1]

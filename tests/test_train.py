@@ -17,7 +17,7 @@ import pytest
 
 from rhaml_jax.amlnet.checkpoint import load_model
 from rhaml_jax.amlnet.config import get_config
-from rhaml_jax.amlnet.data import Batch, ToyRectangles
+from rhaml_jax.amlnet.data import ToyRectangles
 from rhaml_jax.amlnet.trainer import TrainConfig, train_amlnet
 from rhaml_jax.errors import RhamlError
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jax import lax
 
 from rhaml_jax.amlnet import ops
 from rhaml_jax.amlnet.init import HostInit

@@ -10,7 +10,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from rhaml_jax.amlnet.config import ModelConfig
 from rhaml_jax.amlnet.functional import build

@@ -14,7 +14,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from rhaml_jax.amlnet.config import ModelConfig, config_from_dict, config_to_dict
+from rhaml_jax.amlnet.config import ModelConfig, config_from_dict
 from rhaml_jax.amlnet.functional import Net, build
 from rhaml_jax.errors import RhamlError
 

@@ -5,7 +5,6 @@ Convolutions carry no bias (BN follows).  Same input and output conventions as A
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 from flax import nnx
 
 from rhaml_jax.amlnet import ops

@@ -15,7 +15,6 @@ and by MAC counting (every multiply-accumulate is then a convolution or a matrix
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -108,7 +107,6 @@ def conv_ref(x, w, b=None, stride: int = 1):
 
 def dense_1d_ref(x, w, b=None, axis: int = 2):
     """Dense 'same' 1xk (axis=2) or kx1 (axis=1) convolution; w: (k, C_in, C_out)."""
-    k = w.shape[0]
     kern = w[None] if axis == 2 else w[:, None]
     out = lax.conv_general_dilated(x, kern, (1, 1), "SAME", dimension_numbers=DN)
     return out if b is None else out + b

@@ -12,7 +12,6 @@ from __future__ import annotations
 from typing import Callable, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import optax
 
 from rhaml_jax.amlnet.functional import Net

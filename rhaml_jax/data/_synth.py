@@ -11,12 +11,15 @@ import dataclasses
 import functools
 from typing import NamedTuple
 
+import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
 from rhaml_jax.camera import NOMINAL_HEIGHT_M, Camera, T_cam_robot
 from rhaml_jax.data._backdrop import Light, photo, room_image, sample_light, sample_room
+from rhaml_jax.data._trajectories import relative
 from rhaml_jax.frames import se3_from_xypsi
+from rhaml_jax.render import Mesh, render
 
 MIN_VISIBLE_PX = 12  # fewer visible robot pixels than this count as "not in view"
 
@@ -131,8 +134,6 @@ def distractor_mesh(rng: np.random.Generator, count: int, slots: int, keep_out_x
 
 
 def _render(model_mesh, T_cam_model: jaxlie.SE3, camera: Camera, light: Light):
-    from rhaml_jax.render import render
-
     out = render(model_mesh, T_cam_model, camera.K.astype(np.float32), camera.width, camera.height,
                  light_dir=tuple(float(x) for x in light.in_camera()), ambient=light.ambient, diffuse=light.diffuse)
     return np.asarray(out.rgb), np.asarray(out.mask), np.asarray(out.depth)
@@ -193,10 +194,6 @@ def training_sample(model_mesh, camera: Camera, seed: int, index: int, negative:
                                      (0.6, bounds[1] - 0.3, bounds[2] + 0.3, bounds[3] - 0.3))
         layers = [bg]
         if cfg.max_distractors:
-            from rhaml_jax.render import Mesh
-
-            import jax.numpy as jnp
-
             layers.append(_render(Mesh(jnp.asarray(dv), jnp.asarray(df), jnp.asarray(dc)), T_cam, camera, light))
         if negative:
             rgb, _ = compose(layers)
@@ -214,8 +211,6 @@ def scenario_frame(model_mesh, camera: Camera, room, light: Light, observer_xyps
     Returns (rgb uint8, mask_visib, pose of the observed robot in the observer's frame (3,),
     observed: enough robot pixels in the image).
     """
-    from rhaml_jax.data._trajectories import relative
-
     rel = relative(np.asarray(observer_xypsi, np.float64), np.asarray(observed_xypsi, np.float64))
     W, H = camera.width, camera.height
     bg = (*room_image(room, light, camera.K, W, H, observer_xypsi, h),)

@@ -13,7 +13,6 @@ right-hand side, so its step is exactly zero.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 from ._banded import pcr_solve, thomas_solve
