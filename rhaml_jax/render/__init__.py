@@ -47,14 +47,16 @@ class RenderConfig:
     """Static settings (hashable; a change recompiles).
 
     block: side (px) of the blocks each face's box is cut into (hard render);
-    soft_block: the same for `silhouette`. chunk_pixels: pixel tests per step of the pair loop.
+    soft_block: the same for `silhouette` (and its XLA-autodiff VJP); soft_block_bwd: the same
+    for the backward pass of its custom VJP. chunk_pixels: pixel tests per step of the pair loop.
     near: near clipping plane (m). cutoff: a face's soft edge fades out at cutoff / sharpness px.
     vjp: "custom" (nearest-edge VJP) or "autodiff" (XLA's reverse mode over `capacity` pairs,
     pairs beyond it dropped; a reference for tests and benchmarks) for `silhouette`.
     """
 
     block: int = 8
-    soft_block: int = 4
+    soft_block: int = 8
+    soft_block_bwd: int = 4
     chunk_pixels: int = 32768
     near: float = 0.01
     cutoff: float = 7.0
@@ -86,8 +88,8 @@ def _screen(mesh: Mesh, params, K, near) -> ScreenFaces:
 
 @functools.partial(jax.jit, static_argnames=("width", "height", "config"))
 def _silhouette(mesh, params, Ks, sharpness, width, height, config):
-    blk = config.soft_block
-    size = chunk_size(blk, config.chunk_pixels)
+    blk, blk_b = config.soft_block, config.soft_block_bwd
+    size, size_b = chunk_size(blk, config.chunk_pixels), chunk_size(blk_b, config.chunk_pixels)
 
     def one(p, K):
         sf = _screen(mesh, p, K, config.near)
@@ -96,7 +98,9 @@ def _silhouette(mesh, params, Ks, sharpness, width, height, config):
         margin = jax.lax.stop_gradient(config.cutoff / sharpness)
         lay = layout(sf, margin, width, height, blk)
         if config.vjp == "custom":
-            cov = coverage(sf.poly, sharpness, sf.orient, lay, width, height, blk, size, config.cutoff)
+            lays = (lay, layout(sf, margin, width, height, blk_b))
+            cov = coverage(sf.poly, sharpness, sf.orient, lays, width, height, (blk, blk_b), (size, size_b),
+                           config.cutoff)
         else:
             cov = coverage_autodiff(sf.poly, sharpness, sf.orient, lay, width, height, blk, size, config.cutoff,
                                     config.capacity)

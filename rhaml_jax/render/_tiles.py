@@ -128,10 +128,11 @@ def block_pixels(b: Blocks, block: int, dtype):
     return u, v, used
 
 
-def block_rows(b: Blocks, width: int, height: int, block: int):
-    """(C, B) flat index in the padded image of the first pixel of each block row (the row's
-    B pixels are contiguous there); out of range (dropped by scatters) for unused slots."""
-    wp, hp = padded_size(width, height, block)
+def block_rows(b: Blocks, width: int, height: int, block: int, pad_block: int):
+    """(C, B) flat index in the image padded for blocks of pad_block >= B px of the first pixel of
+    each block row (the row's B pixels are contiguous there); out of range (dropped by scatters)
+    for unused slots."""
+    wp, hp = padded_size(width, height, pad_block)
     start = (b.y[:, None] + jnp.arange(block, dtype=jnp.int32)[None, :]) * wp + b.x[:, None]
     return jnp.where((b.ncol > 0)[:, None], start, wp * hp)
 
