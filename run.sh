@@ -14,9 +14,9 @@ case "$what" in
   main)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e .
     # Until the demo lands (pipeline issue), the main job is the most complete one there is:
-    # load the built-in robot model and report it.
-    echo "rhaml_jax: the demo is not built yet; running the most complete job: the robot model report" >&2
-    exec .venv/bin/python -m rhaml_jax.info --robot pioneer3dx "$@"
+    # render the paper's circle evaluation scenario (BOP images + TUM trajectories) into out/.
+    echo "rhaml_jax: the demo is not built yet; running the most complete job: rendering the circle scenario into out/circle" >&2
+    exec .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle "$@"
     ;;
   test)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev]'
