@@ -3,7 +3,10 @@
 and with a naive all-pairs formulation (side by side), a batch of 32 crops, the 640 x 480 shaded
 render, and how cost grows with faces and pixels.
 
-    .venv/bin/python experiments/bench_render.py [--repeats 20] [--json out.json]
+    .venv/bin/python experiments/bench_render.py [--repeats 20] [--json out.json] [--before REV]
+
+--before REV also times the renderer package as it was at git revision REV (extracted to a
+temporary folder), side by side with the current one on the 64 x 64 crop.
 """
 
 from __future__ import annotations
@@ -11,6 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -67,11 +73,39 @@ def soft_fns(mesh, size, sharpness, config, naive=False):
     return fwd, jax.jit(jax.value_and_grad(loss))
 
 
+def render_at(rev: str):
+    """The rhaml_jax.render package of git revision `rev`, imported as `render_before`."""
+    root = Path(__file__).resolve().parents[1]
+    names = subprocess.run(["git", "ls-tree", "--name-only", rev, "rhaml_jax/render/"], cwd=root, check=True,
+                           capture_output=True, text=True).stdout.split()
+    out = Path(tempfile.mkdtemp()) / "render_before"
+    out.mkdir()
+    for n in names:
+        src = subprocess.run(["git", "show", f"{rev}:{n}"], cwd=root, check=True, capture_output=True, text=True).stdout
+        (out / Path(n).name).write_text(src.replace("rhaml_jax.render", "render_before"))
+    sys.path.insert(0, str(out.parent))
+    import render_before
+
+    return render_before
+
+
+def before_fns(B, mesh, size, sharpness):
+    m = B.as_mesh((np.asarray(mesh.vertices), np.asarray(mesh.faces)))
+
+    def loss(delta, T0, box, target):
+        s = B.silhouette(m, T0 @ jaxlie.SE3.exp(delta), CAM.K, size, size, box=box, sharpness=sharpness)
+        return jnp.sum((s - target) ** 2)
+
+    return (jax.jit(lambda T0, box: B.silhouette(m, T0, CAM.K, size, size, box=box, sharpness=sharpness)),
+            jax.jit(jax.value_and_grad(loss)))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--sharpness", type=float, default=2.0)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--before", help="git revision whose renderer to time side by side")
     a = ap.parse_args()
     k = a.sharpness
     print(f"load average before: {os.getloadavg()}")
@@ -92,9 +126,17 @@ def main():
     _, a_vg = soft_fns(mesh, 64, k, auto)
     n_fwd, n_vg = soft_fns(mesh, 64, k, None, naive=True)
     z = jnp.zeros(6)
-    t = timed({"fwd": f_fwd, "fwd_bwd": f_vg, "autodiff_fwd_bwd": a_vg, "naive_fwd": n_fwd, "naive_fwd_bwd": n_vg},
-              {"fwd": (T0, box), "fwd_bwd": (z, T0, box, target), "autodiff_fwd_bwd": (z, T0, box, target),
-               "naive_fwd": (T0, box), "naive_fwd_bwd": (z, T0, box, target)}, a.repeats)
+    fns = {"fwd": f_fwd, "fwd_bwd": f_vg, "autodiff_fwd_bwd": a_vg, "naive_fwd": n_fwd, "naive_fwd_bwd": n_vg}
+    args = {"fwd": (T0, box), "fwd_bwd": (z, T0, box, target), "autodiff_fwd_bwd": (z, T0, box, target),
+            "naive_fwd": (T0, box), "naive_fwd_bwd": (z, T0, box, target)}
+    if a.before:
+        b_fwd, b_vg = before_fns(render_at(a.before), mesh, 64, k)
+        fns.update(before_fwd=b_fwd, before_fwd_bwd=b_vg)
+        args.update(before_fwd=(T0, box), before_fwd_bwd=(z, T0, box, target))
+        res["before"] = a.before
+        print(f"before ({a.before}) vs now, max |difference| of the forward:",
+              float(jnp.abs(b_fwd(T0, box) - f_fwd(T0, box)).max()))
+    t = timed(fns, args, a.repeats)
     res["crop64"] = t
     print(json.dumps({"crop64_ms": t}))
 
