@@ -64,21 +64,16 @@ def layout(sf: ScreenFaces, margin, width: int, height: int, block: int) -> Layo
 
 
 def chunk_pairs(lay: Layout, first, size: int, width: int, height: int, block: int) -> Pairs:
-    """Pairs number first .. first+size-1 (those >= needed are unused)."""
-    slot = first + jnp.arange(size, dtype=jnp.int32)
-    face = jnp.searchsorted(lay.ends, slot, side="right").astype(jnp.int32)
-    live = slot < lay.needed
-    face = jnp.minimum(face, lay.ends.shape[0] - 1)
-    local = slot - lay.starts[face]
-    nbx = lay.nbx[face]
-    bx, by = local % nbx, local // nbx
+    """Pairs number first .. first+size-1 (those >= needed are unused), pixel by pixel."""
+    b = chunk_blocks(lay, first, size, block)
     off = jnp.arange(block, dtype=jnp.int32)
-    px = (lay.x0[face] + bx * block)[:, None, None] + off[None, None, :]  # (C, B, B)
-    py = (lay.y0[face] + by * block)[:, None, None] + off[None, :, None]
-    used = live[:, None, None] & (px <= lay.x1[face][:, None, None]) & (py <= lay.y1[face][:, None, None])
+    px = b.x[:, None, None] + off[None, None, :]  # (C, B, B)
+    py = b.y[:, None, None] + off[None, :, None]
+    used = (off[None, None, :] < b.ncol[:, None, None]) & (off[None, :, None] < b.nrow[:, None, None])
     px = jnp.broadcast_to(px, used.shape).reshape(size, -1)
     py = jnp.broadcast_to(py, used.shape).reshape(size, -1)
     used = used.reshape(size, -1)
+    face = b.face
     index = jnp.where(used, py * width + px, width * height)
     return Pairs(face, px, py, index, used)
 
