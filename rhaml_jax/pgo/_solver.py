@@ -105,11 +105,15 @@ def lm_loop(T0, linearize_fn, solve_fn, cfg: SolverConfig):
         gd = -jnp.where(step_ok, g_delta, 0.0)  # > 0 for a descent direction
         predicted = 0.5 * gd + 0.5 * jnp.where(step_ok, damp_dd, 0.0)  # decrease of the local model
         ok = step_ok & jnp.isfinite(cost_new) & (cost_new < s.cost) & (gd > 0)
-        tol = jnp.maximum(cfg.relative_tolerance * s.cost, cfg.absolute_tolerance)
+        # the cost itself is only known to about `noise` (its rounding error), so no tolerance
+        # below it can be met: float32 would otherwise count rounding as failed steps and
+        # raise the damping until max_lambda
+        noise = 64 * jnp.finfo(dt).eps * s.cost
+        tol = jnp.maximum(jnp.maximum(cfg.relative_tolerance * s.cost, cfg.absolute_tolerance), noise)
         small = ok & (s.cost - cost_new <= tol)
-        # an undamped finite step that cannot decrease the cost by more than the tolerance:
-        # we are at the minimum already (rounding makes such steps fail)
-        flat = step_ok & ~ok & (predicted <= tol) & (s.lam == 0 if cfg.method == "gn" else True)
+        # a (nearly) undamped finite step that cannot decrease the cost by more than the
+        # tolerance: we are at the minimum already (rounding makes such steps fail)
+        flat = step_ok & ~ok & (predicted <= tol) & (s.lam <= cfg.lambda_initial if cfg.method == "gn" else True)
         ok = ok | first
         T = jnp.where(ok, T_new, s.T)
         system = jax.tree.map(lambda a, b: jnp.where(ok, a, b), sys_new, s.system)
