@@ -1,5 +1,7 @@
 """AMLNet: fast kernels vs plain lax convolutions, parameter/MAC counts, configs, bad input."""
 
+from dataclasses import replace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,6 +15,7 @@ from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import (AMLNetConfig, config_from_dict, config_to_dict, get_config)
 from rhaml_jax.amlnet.count import count_macs, count_params
 from rhaml_jax.amlnet.functional import build, check_images
+from rhaml_jax.amlnet.model import scale_head
 from rhaml_jax.errors import RhamlError
 
 TOL = 1e-5
@@ -108,8 +111,9 @@ def test_block_matches_reference(name):
     assert float(jnp.abs(fe - x).max()) > 1e-2  # the branch is not negligible
 
 
-def test_network_matches_reference():
-    cfg = get_config("micro")
+@pytest.mark.parametrize("variant", [{}, {"pool": "flatten", "angle_head": "cossin"}])
+def test_network_matches_reference(variant):
+    cfg = replace(get_config("micro"), **variant)
     net = build(cfg, jax.random.key(0))
     params = _scaled(net.params, jax.random.key(1), 0.1)
     x = jax.random.uniform(jax.random.key(2), (2, *cfg.input_hw, 3))
@@ -119,10 +123,17 @@ def test_network_matches_reference():
         return [net.train_apply(p, net.batch_stats, x, None, impl) for impl in ("fast", "reference")]
 
     (a, sa), (b, sb) = run(params)
-    assert a.shape == (2, 4)
+    assert a.shape == (2, 5 if variant else 4)
     np.testing.assert_allclose(a, b, atol=TOL, rtol=TOL)
     for u, v in zip(jax.tree.leaves(sa), jax.tree.leaves(sb)):
         np.testing.assert_allclose(u, v, atol=TOL, rtol=TOL)
+
+
+def test_head_is_standardised():
+    """The raw head is scaled to metres around the scenarios' middle depth: a zero head
+    predicts (o logit 0, x 4.5 m, y 0, psi 0 | cos 0, sin 0)."""
+    np.testing.assert_allclose(scale_head(jnp.zeros((1, 5))), [[0.0, 4.5, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(scale_head(jnp.ones((1, 4))), [[1.0, 6.5, 2.0, 1.0]])
 
 
 def test_paper_and_frontnet_counts():

@@ -76,7 +76,8 @@ def load_model(run_dir: str | Path, step: int | None = None) -> tuple[Net, objec
         net = build(cfg, abstract=True)
         like = {"params": net.params, "batch_stats": net.batch_stats}
         if not meta.get("weights_only", False):  # a training run also holds the optimizer state
-            like["opt_state"] = jax.eval_shape(make_optimizer(1e-3, 2).init, net.params)
+            clip = meta.get("train_config", {}).get("clip")  # the optimizer state's structure
+            like["opt_state"] = jax.eval_shape(make_optimizer(1e-3, 2, clip=clip).init, net.params)
         state = ck.restore(step, like)
     finally:
         ck.close()

@@ -52,6 +52,9 @@ class AMLNetConfig:
       depthwise.
     angle_head: "psi" outputs (o, x, y, psi) as in the paper; "cossin" outputs
       (o, x, y, cos psi, sin psi) and decodes psi with atan2 (documented option).
+    pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
+      feature grid to the neck, so the image position of the robot (its bearing) reaches the
+      head directly instead of through zero-padding artefacts (a documented option).
     """
 
     name: str
@@ -65,6 +68,7 @@ class AMLNetConfig:
     branch_ratio: int = 8
     neck: tuple[int, ...] = (1024, 1024)
     angle_head: AngleHead = "psi"
+    pool: Literal["gap", "flatten"] = "gap"
     layer_scale_init: float = 1e-6
     drop_path: float = 0.0
     kind: Literal["amlnet"] = "amlnet"
@@ -85,6 +89,13 @@ class AMLNetConfig:
             raise RhamlError(f"config {self.name}: input_hw {self.input_hw} must be divisible by {stride}")
         if self.angle_head not in ("psi", "cossin"):
             raise RhamlError(f"config {self.name}: angle_head must be 'psi' or 'cossin'")
+        if self.pool not in ("gap", "flatten"):
+            raise RhamlError(f"config {self.name}: pool must be 'gap' or 'flatten'")
+
+    @property
+    def final_grid(self) -> tuple[int, int]:
+        stride = 4 * 2 ** (len(self.depths) - 1)
+        return self.input_hw[0] // stride, self.input_hw[1] // stride
 
 
 @dataclass(frozen=True)
@@ -115,11 +126,17 @@ its 4:3 aspect; divisible by the network's stride 32, final grid 4 x 5); widths 
 256) = 1/3 of the paper's; depths (2, 2, 6, 2); the paper's dense ACN with K = {3, 5, 7}, so
 the Table II question can still be asked at this size (cpu_k0, cpu_k3, cpu_k35); neck
 256 -> 256 -> 256; layer scale initialised at 0.1 instead of 1e-6 (a short run cannot afford
-residual branches that start switched off).  2.09 M parameters, 0.139 GMACs (64x fewer than
-`paper`).  Its training step measured 8.8 images/s at batch 32 with the machine under load
-6-7 (matmul at 16 of ~88 GMAC/s quiet; BENCHMARKS.md), i.e. >= 60 k images (about one paper
-epoch of 80 k) in two hours even then.  The robot at the far end of the scenarios (7 m) still
-spans about 6 x 4 pixels at this input size."""
+residual branches that start switched off).  Two documented departures from the paper's head,
+both for a two-hour budget: the final 4 x 5 x 256 feature grid is flattened into the neck
+instead of averaged (pool="flatten"), so the robot's bearing, i.e. its image column, reaches
+the head directly; and the heading is regressed as (cos psi, sin psi) (angle_head="cossin"),
+since a single psi output must jump somewhere on the circle of headings.  In a side-by-side
+start of both heads (BENCHMARKS.md) the paper's psi head had not left the mean predictor after
+270 steps while the cossin head had.  3.34 M parameters, 0.140 GMACs (63x fewer than
+`paper`); about 14 images/s per run with two runs sharing the 2 cores, so 4000 steps of 32
+(128 k images, seven passes over the 18 k training images) fit in about two hours alone.
+The robot at the far end of the scenarios (7 m) still spans about 6 x 4 pixels at this
+input size."""
 
 
 def _amlnet(name: str, **kw) -> AMLNetConfig:
@@ -132,6 +149,8 @@ _CPU = dict(
     dims=(32, 64, 128, 256),
     mlp_ratios=(4, 4, 4, 3),
     neck=(256, 256),
+    pool="flatten",
+    angle_head="cossin",
     layer_scale_init=0.1,
 )
 _TINY = dict(input_hw=(32, 32), depths=(1, 1, 1, 1), dims=(16, 16, 32, 32), mlp_ratios=(2, 2, 2, 2), neck=(16,), layer_scale_init=0.1)
@@ -146,7 +165,7 @@ CONFIGS: dict[str, ModelConfig] = {
     "cpu_k0": _amlnet("cpu_k0", acn_kernels=(), **_CPU),
     "cpu_k3": _amlnet("cpu_k3", acn_kernels=(3,), **_CPU),
     "cpu_k35": _amlnet("cpu_k35", acn_kernels=(3, 5), **_CPU),
-    "cpu_cossin": _amlnet("cpu_cossin", angle_head="cossin", **_CPU),
+    "cpu_psi": _amlnet("cpu_psi", **{**_CPU, "angle_head": "psi"}),
     "frontnet": FrontNetConfig("frontnet"),
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),

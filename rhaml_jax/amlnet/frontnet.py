@@ -10,7 +10,7 @@ from flax import nnx
 from rhaml_jax.amlnet import ops
 from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import FrontNetConfig, num_outputs
-from rhaml_jax.amlnet.model import normalize_images
+from rhaml_jax.amlnet.model import normalize_images, scale_head
 from rhaml_jax.amlnet.norm import BatchNorm
 
 __all__ = ["FrontNet"]
@@ -46,4 +46,4 @@ class FrontNet(nnx.Module):
         if train and self.cfg.dropout > 0 and key is not None:
             keep = 1.0 - self.cfg.dropout
             x = x * jax.random.bernoulli(key, keep, x.shape).astype(x.dtype) / keep
-        return x @ self.fc[...] + self.fc_b[...]
+        return scale_head(x @ self.fc[...] + self.fc_b[...])

@@ -18,11 +18,22 @@ from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import AMLNetConfig, num_outputs
 from rhaml_jax.amlnet.norm import BatchNorm
 
-__all__ = ["AMLNet", "normalize_images"]
+__all__ = ["AMLNet", "normalize_images", "scale_head"]
 
-X_INIT = 4.5
+# The head's outputs in metres are offset and scale * raw, with the scenarios' typical
+# depth (4.5 m, the middle of 1-8 m) and spread (about 2 m in x and y): the raw outputs are
+# then standardised targets of order 1, so neither the first steps nor Adam's per-parameter
+# step size are spent on bridging a 4.5 m offset or a factor 2 in scale.
+OUT_OFFSET = (0.0, 4.5, 0.0, 0.0, 0.0)
+OUT_SCALE = (1.0, 2.0, 2.0, 1.0, 1.0)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def scale_head(raw):
+    """(B, 4|5) standardised head -> head in metres (OUT_OFFSET + OUT_SCALE * raw)."""
+    n = raw.shape[-1]
+    return raw * jnp.asarray(OUT_SCALE[:n], raw.dtype) + jnp.asarray(OUT_OFFSET[:n], raw.dtype)
 
 
 def normalize_images(images):
@@ -53,12 +64,11 @@ class AMLNet(nnx.Module):
             stages.append(nnx.List([AIncepBlock(c, r, cfg, init=init) for _ in range(depth)]))
         self.downs = nnx.List(downs)
         self.stages = nnx.List(stages)
-        widths = (cfg.dims[-1],) + tuple(cfg.neck)
+        gh, gw = cfg.final_grid
+        widths = (cfg.dims[-1] * (gh * gw if cfg.pool == "flatten" else 1),) + tuple(cfg.neck)
         self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
         self.head = Linear(widths[-1], num_outputs(cfg), init=init)
-        # Start x at the middle of the working depth range (2-7 m) instead of 0 m, so that the
-        # first steps do not spend themselves on a 4.5 m offset.
-        self.head.b[...] = self.head.b[...].at[1].set(X_INIT)
+
 
     def features(self, images, train: bool = False, key=None, impl: str = "fast"):
         patch = ops.patchify if impl == "fast" else ops.patchify_ref
@@ -72,10 +82,12 @@ class AMLNet(nnx.Module):
                 k = None if key is None else jax.random.fold_in(key, n)
                 x = blk(x, train, k, impl)
                 n += 1
+        if self.cfg.pool == "flatten":
+            return x.reshape(x.shape[0], -1)
         return jnp.mean(x, axis=(1, 2))
 
     def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
         h = self.features(images, train, key, impl)
         for fc in self.neck:
             h = jax.nn.gelu(fc(h), approximate=False)
-        return self.head(h)
+        return scale_head(self.head(h))

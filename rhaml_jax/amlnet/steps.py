@@ -34,9 +34,13 @@ def make_schedule(lr: float = 1e-3, steps: int = 1000, warmup: int = 0):
     return optax.cosine_decay_schedule(lr, max(steps, 1))
 
 
-def make_optimizer(lr: float = 1e-3, steps: int = 1000, weight_decay: float = 0.05, warmup: int = 0):
-    """AdamW with `make_schedule`."""
-    return optax.adamw(make_schedule(lr, steps, warmup), weight_decay=weight_decay)
+def make_optimizer(lr: float = 1e-3, steps: int = 1000, weight_decay: float = 0.05, warmup: int = 0,
+                   clip: float | None = None):
+    """AdamW with `make_schedule`, after clipping the gradient's global norm to `clip`
+    (None: no clipping).  Clipping keeps the rare huge gradient of an outlier batch from
+    inflating Adam's second-moment estimate for hundreds of steps."""
+    adamw = optax.adamw(make_schedule(lr, steps, warmup), weight_decay=weight_decay)
+    return adamw if clip is None else optax.chain(optax.clip_by_global_norm(clip), adamw)
 
 
 def make_steps(net: Net, tx: optax.GradientTransformation, w_psi: float = 3.0, w_p: float = 2.0,

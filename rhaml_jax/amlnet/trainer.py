@@ -40,19 +40,36 @@ __all__ = ["TrainConfig", "train_amlnet"]
 
 @dataclass(frozen=True)
 class TrainConfig:
-    steps: int = 1000
+    """Optimisation settings of a run (stored in its checkpoints; `--resume` requires equal ones)."""
+
+    steps: int = 5000
+    """optimizer steps (the cosine schedule spans them)"""
     batch: int = 32
+    """global batch size (a multiple of the device count)"""
     lr: float = 1e-3
+    """AdamW peak learning rate (cosine annealing to 0)"""
     weight_decay: float = 0.05
-    warmup: int = 0
+    """AdamW weight decay"""
+    warmup: int = 200
+    """linear learning-rate warm-up steps (0: none, the paper's plain cosine)"""
+    clip: float | None = 5.0
+    """clip the gradient's global norm to this (None: no clipping)"""
     seed: int = 0
+    """seed of initialisation, data order and augmentation"""
     w_psi: float = 3.0
+    """weight of the heading term in L_p"""
     w_p: float = 2.0
+    """weight of L_p in L_A = L_o + w_p L_p"""
     log_every: int = 10
-    val_every: int = 200
-    val_batches: int = 4
-    ckpt_every: int = 100
+    """steps between metrics.jsonl lines"""
+    val_every: int = 500
+    """steps between validations"""
+    val_batches: int = 8
+    """validation batches per validation"""
+    ckpt_every: int = 250
+    """steps between checkpoints"""
     keep: int = 2
+    """checkpoints kept"""
 
 
 def _devices(num_devices: int | None):
@@ -65,13 +82,13 @@ def _devices(num_devices: int | None):
 
 
 @functools.lru_cache(maxsize=4)
-def _compiled(cfg: ModelConfig, lr, steps, weight_decay, warmup, w_psi, w_p, devices):
+def _compiled(cfg: ModelConfig, lr, steps, weight_decay, warmup, clip, w_psi, w_p, devices):
     """Jitted steps for one (model, optimizer, device set), reused by later runs in the same
     process (XLA's CPU compiler is slow: minutes for the paper network)."""
     mesh = Mesh(np.array(devices), ("data",))
     rep, bat = NamedSharding(mesh, P()), NamedSharding(mesh, P("data"))
     net = build(cfg, abstract=True)
-    tx = make_optimizer(lr, steps, weight_decay, warmup)
+    tx = make_optimizer(lr, steps, weight_decay, warmup, clip)
     return tx, make_schedule(lr, steps, warmup), make_steps(net, tx, w_psi, w_p, shardings=(rep, bat)), rep, bat
 
 
@@ -140,7 +157,8 @@ def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source:
     ck = Checkpoints(out, keep=tc.keep)
     try:
         net = build(cfg, jax.random.key(tc.seed))
-        tx, sched, steps, rep, bat = _compiled(cfg, tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.w_psi, tc.w_p, devices)
+        tx, sched, steps, rep, bat = _compiled(cfg, tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip,
+                                                    tc.w_psi, tc.w_p, devices)
         params, stats = net.params, net.batch_stats
         opt_state = tx.init(params)
         start = 0
