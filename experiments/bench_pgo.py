@@ -12,6 +12,7 @@ median over repeats of optimizer construction + optimize(). Both report GTSAM's 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -75,15 +76,11 @@ def bench_datasets(names, repeats, rows):
         print(rows[-1], flush=True)
 
 
-def bench_rhaml(K, repeats):
-    """Ours: jitted `rhaml_pgo` (Algorithm 1 end to end) on the padded K-rendezvous input;
-    GTSAM: Gauss-Newton on the same graph (`rhaml_pose_graph`, same initial guess)."""
-    sim = simulate_rendezvous(K, seed=0)
-    rv = jax.tree.map(jnp.asarray, sim.rendezvous)
+def _time_rhaml(rv, repeats):
+    """(median s, compile wall s, compile CPU s, result) of jitted `rhaml_pgo` on `rv`."""
     fn = jax.jit(rhaml_pgo, static_argnames="config")
     t, c = time.perf_counter(), time.process_time()
-    lowered = fn.lower(rv)
-    compiled = lowered.compile()
+    compiled = fn.lower(rv).compile()
     compile_s, compile_cpu = time.perf_counter() - t, time.process_time() - c
     out = jax.block_until_ready(compiled(rv))
     ts = []
@@ -91,9 +88,22 @@ def bench_rhaml(K, repeats):
         t = time.perf_counter()
         jax.block_until_ready(compiled(rv))
         ts.append(time.perf_counter() - t)
+    return statistics.median(ts), compile_s, compile_cpu, out
+
+
+def bench_rhaml(K, repeats):
+    """Ours: jitted `rhaml_pgo` (Algorithm 1 end to end) on the padded K-rendezvous input, in
+    float64 and in float32 (JAX's default, what the pipeline runs); GTSAM: Gauss-Newton on the
+    same graph (`rhaml_pose_graph`, same initial guess)."""
+    sim = simulate_rendezvous(K, seed=0)
+    t, compile_s, compile_cpu, out = _time_rhaml(jax.tree.map(jnp.asarray, sim.rendezvous), repeats)
+    with jax.enable_x64(False):
+        rv32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if a.dtype == np.float64 else jnp.asarray(a),
+                            sim.rendezvous)
+        t32, _, _, out32 = _time_rhaml(rv32, repeats)
     g_t, g_err, g_its = gtsam_run(rhaml_pose_graph(sim.rendezvous), "gn", repeats)
-    return (statistics.median(ts), compile_s, compile_cpu, int(out.iterations), float(out.final_cost),
-            g_t, g_err, g_its)
+    return (t, compile_s, compile_cpu, int(out.iterations), float(out.final_cost), g_t, g_err, g_its,
+            t32, int(out32.iterations))
 
 
 def outlier_table(K, seeds):
@@ -142,13 +152,14 @@ def main():
             lines.append(f"| {n} | {N} | {E} | {m} | {c:.6g} | {it} | {t:.3f} | {ct:.1f} | {gc:.6g} | {git} | {gt:.3f} "
                          f"| {gt / t:.2f} |")
         lines.append("")
-    t, ct, ccpu, it, cost, gt, gcost, git = bench_rhaml(args.rhaml_k, args.rhaml_repeats)
+    t, ct, ccpu, it, cost, gt, gcost, git, t32, it32 = bench_rhaml(args.rhaml_k, args.rhaml_repeats)
     lines += [f"RHAML two-robot graph, {args.rhaml_k} rendezvous ({2 * args.rhaml_k + 2} poses, "
               f"{3 * args.rhaml_k} edges), jitted `rhaml_pgo` (Algorithm 1 end to end, ladder solver): "
               f"median {t * 1e3:.2f} ms over {args.rhaml_repeats} runs, {it} iterations, final cost {cost:.6g}, "
               f"compile {ct:.1f} s wall ({ccpu:.1f} s CPU). GTSAM Gauss-Newton on the same graph "
               f"(`rhaml_pose_graph`, same initial guess; graph construction not included): median "
-              f"{gt * 1e3:.2f} ms, {git} iterations, final cost {gcost:.6g}.", ""]
+              f"{gt * 1e3:.2f} ms, {git} iterations, final cost {gcost:.6g}. In float32: median {t32 * 1e3:.2f} ms, "
+              f"{it32} iterations. Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.", ""]
     orows = outlier_table(40, args.outlier_seeds)
     lines += [f"Outliers: {args.outlier_seeds} simulated sequences of 40 rendezvous per row; a fraction of the mutual "
               "observations replaced by wrong ones (off by 1-3 m and 90-180 deg); error of A_0 T B_0.", "",

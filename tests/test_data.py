@@ -292,3 +292,28 @@ def test_augment_range_and_determinism():
     np.testing.assert_array_equal(a, b)
     assert a.shape == imgs.shape and 0 <= a.min() and a.max() <= 1
     assert np.abs(a - imgs).mean() > 1e-3 and np.abs(a - c).mean() > 1e-3
+
+
+def test_network_image_keeps_bearings():
+    """A point seen through another camera lands, after network_image, where the network's
+    camera would see it (the residual homography); the network's own camera is a plain resize."""
+    import cv2
+
+    from rhaml_jax.camera import Camera, project
+
+    hw = (128, 160)
+    K_net = DEFAULT_CAMERA.resized(hw[1], hw[0]).K
+    other = Camera(fx=520.0, fy=515.0, cx=410.0, cy=290.0, width=800, height=600)
+    for p in ([0.3, -0.2, 3.0], [-0.6, 0.25, 2.0]):  # optical frame, metres
+        uv = np.asarray(project(other.K, np.array(p))[0])
+        img = np.zeros((600, 800, 3), np.uint8)
+        cv2.circle(img, (int(round(uv[0] * 8)), int(round(uv[1] * 8))), 40, (255, 255, 255), -1, shift=3)
+        out = data.network_image(img, other.K, hw)[..., 0].astype(np.float64)
+        ys, xs = np.mgrid[: hw[0], : hw[1]]
+        centre = np.array([(xs * out).sum(), (ys * out).sum()]) / out.sum()
+        np.testing.assert_allclose(centre, np.asarray(project(K_net, np.array(p))[0]), atol=0.35)
+    img = np.random.default_rng(0).integers(0, 255, (480, 640, 3), np.uint8)
+    np.testing.assert_array_equal(data.network_image(img, DEFAULT_CAMERA.K, hw),
+                                  cv2.resize(img, (160, 128), interpolation=cv2.INTER_AREA))
+    with pytest.raises(RhamlError, match="RGB"):
+        data.network_image(img[..., 0], DEFAULT_CAMERA.K, hw)

@@ -9,11 +9,13 @@ Public API:
 - loss: `amlnet_loss` (eqs. 3-5, negatives masked out of L_p);
 - counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
 - training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
-  `load_model(run_dir)`; `ToyRectangles` is a toy source for tests only.
+  `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
+  `shipped_checkpoint("amlnet_cpu")` (the weights in the package); `ToyRectangles` is a toy
+  source for tests only.
 """
 
 from rhaml_jax.amlnet.acn import acn, acn_reference
-from rhaml_jax.amlnet.checkpoint import load_model
+from rhaml_jax.amlnet.checkpoint import export_weights, load_model, shipped_checkpoint
 from rhaml_jax.amlnet.config import (AMLNetConfig, FrontNetConfig, config_from_dict, config_names, config_to_dict,
                                      get_config)
 from rhaml_jax.amlnet.count import count_macs, count_params
@@ -27,5 +29,5 @@ __all__ = [
     "AMLNetConfig", "FrontNetConfig", "get_config", "config_names", "config_to_dict", "config_from_dict",
     "Net", "build", "check_images", "acn", "acn_reference", "decode", "amlnet_loss",
     "count_params", "count_macs", "describe", "Batch", "BatchSource", "ToyRectangles",
-    "TrainConfig", "train_amlnet", "load_model",
+    "TrainConfig", "train_amlnet", "load_model", "export_weights", "shipped_checkpoint",
 ]

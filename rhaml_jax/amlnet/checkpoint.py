@@ -8,6 +8,7 @@ killed run leaves the previous checkpoints intact and never a half-written one."
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import jax
@@ -18,7 +19,11 @@ from rhaml_jax.amlnet.config import ModelConfig, config_from_dict
 from rhaml_jax.amlnet.functional import Net, build
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["Checkpoints", "load_model", "export_weights"]
+__all__ = ["Checkpoints", "load_model", "export_weights", "shipped_checkpoint", "SHIPPED_DIR"]
+
+SHIPPED_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+"""Weights shipped inside the package (each a `load_model` folder; BENCHMARKS.md has the
+command that reproduces each and its metrics)."""
 
 
 class Checkpoints:
@@ -26,8 +31,19 @@ class Checkpoints:
         self.dir = Path(run_dir).absolute() / "checkpoints"
         if read_only and not self.dir.is_dir():
             raise RhamlError(f"{run_dir}: no Orbax checkpoints (missing folder {self.dir})")
-        opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=not read_only, enable_async_checkpointing=False, read_only=read_only)
-        self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
+        if read_only:  # Orbax logs three warnings that a read-only manager neither saves nor prunes
+            opts = ocp.CheckpointManagerOptions(max_to_keep=None, save_interval_steps=0, create=False,
+                                                enable_async_checkpointing=False, read_only=True)
+            absl = logging.getLogger("absl")
+            level = absl.level
+            absl.setLevel(logging.ERROR)
+            try:
+                self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
+            finally:
+                absl.setLevel(level)
+        else:
+            opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, enable_async_checkpointing=False)
+            self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
 
     def latest_step(self) -> int | None:
         return self.mngr.latest_step()
@@ -100,3 +116,12 @@ def export_weights(run_dir: str | Path, out_dir: str | Path, step: int | None = 
     finally:
         dst.close()
     return Path(out_dir)
+
+
+def shipped_checkpoint(name: str = "amlnet_cpu") -> Path:
+    """The folder of a shipped checkpoint (e.g. "amlnet_cpu"), for `load_model`."""
+    path = SHIPPED_DIR / name
+    if not (path / "checkpoints").is_dir():
+        known = sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / "checkpoints").is_dir()) if SHIPPED_DIR.is_dir() else []
+        raise RhamlError(f"shipped checkpoint {name!r}: not found in {SHIPPED_DIR} (shipped: {', '.join(known) or 'none'})")
+    return path

@@ -20,6 +20,8 @@ __all__ = [
 ]
 
 from rhaml_jax.data._augment import AugmentConfig, augment  # noqa: E402
-from rhaml_jax.data._pipeline import Batch, FromDisk, OnTheFly, amlnet_batch_source, make_batch_fn  # noqa: E402
+from rhaml_jax.data._pipeline import (Batch, FromDisk, OnTheFly, amlnet_batch_source, make_batch_fn,  # noqa: E402
+                                      network_image)
 
-__all__ += ["AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn"]
+__all__ += ["AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
+            "network_image"]

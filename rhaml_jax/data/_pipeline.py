@@ -16,7 +16,7 @@ import cv2
 import jax
 import numpy as np
 
-from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.camera import DEFAULT_CAMERA, resize_intrinsics
 from rhaml_jax.data._augment import AugmentConfig, augment
 from rhaml_jax.data._bop import read_bop, load_rgb
 from rhaml_jax.data._synth import SynthConfig, training_sample
@@ -71,7 +71,8 @@ class OnTheFly:
 
 @dataclasses.dataclass
 class FromDisk:
-    """Examples of a BOP data set's `split`, resized to width x height (any image size on disk)."""
+    """Examples of a BOP data set's `split` at width x height through the network's camera
+    (any image size and intrinsics on disk, see `network_image`)."""
 
     root: Path
     width: int
@@ -86,11 +87,30 @@ class FromDisk:
 
     def example(self, index: int):
         f = self._frames[index]
-        img = load_rgb(f.rgb)
-        if img.shape[:2] != (self.height, self.width):
-            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        img = network_image(load_rgb(f.rgb), f.K, (self.height, self.width))
         pose = f.xypsi
         return img, float(f.observed), (np.zeros(3, np.float32) if pose is None else pose.astype(np.float32))
+
+
+def network_image(img: np.ndarray, K: np.ndarray, input_hw: tuple[int, int]) -> np.ndarray:
+    """An (H, W, 3) uint8 image taken through intrinsics K, as the network's camera sees it:
+    DEFAULT_CAMERA resized to input_hw (the camera every training image is rendered with).
+
+    Resized with an area filter (what the training images went through); when K, resized,
+    differs from the network's camera (another tool's data, another lens), the residual
+    homography K_net K^-1 is applied too, so pixel columns keep meaning the same bearing.
+    The camera's mounting (height, pitch) is not changed: it must be the one of DESIGN.md."""
+    h, w = input_hw
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise RhamlError(f"image: expected (H, W, 3) RGB, got shape {img.shape}")
+    K_net = DEFAULT_CAMERA.resized(w, h).K
+    K_img = np.asarray(resize_intrinsics(K, (img.shape[1], img.shape[0]), (w, h)))
+    if img.shape[:2] != (h, w):
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    if not np.allclose(K_img, K_net, rtol=1e-6, atol=1e-6 * max(w, h)):
+        H = K_net @ np.linalg.inv(K_img)
+        img = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return img
 
 
 def indices_for_step(step: int, batch: int, size: int | None, seed: int) -> np.ndarray:

@@ -1,0 +1,74 @@
+"""`python -m rhaml_jax.evaluate`: per-frame estimates equal a direct network call, metrics
+equal `metrics.summarize` of them, the JSON layout of DESIGN.md section 5, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from rhaml_jax import metrics
+from rhaml_jax.amlnet import build, decode, get_config, load_model
+from rhaml_jax.amlnet.checkpoint import Checkpoints
+from rhaml_jax.amlnet.config import config_to_dict
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.data import load_rgb, network_image, read_bop
+from rhaml_jax.data._writer import write_training_set
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.evaluate import main
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    write_training_set(root / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=10, negatives=3, workers=1)
+    cfg = get_config("micro")
+    net = build(cfg, jax.random.key(5))
+    ck = Checkpoints(root / "ckpt", keep=1)
+    ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
+            {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
+    ck.close()
+    return root
+
+
+def test_estimates_and_metrics_match_a_direct_call(setup):
+    out = setup / "eval.json"
+    main(["--data", str(setup / "set"), "--amlnet", str(setup / "ckpt"), "--json", str(out), "--batch", "4",
+          "--modules", "iml"])
+    res = json.loads(out.read_text())
+    frames = read_bop(setup / "set")
+    assert [(f["scene_id"], f["im_id"]) for f in res["frames"]] == [(f.scene_id, f.im_id) for f in frames]
+    net, params, stats = load_model(setup / "ckpt")
+    imgs = np.stack([network_image(load_rgb(f.rgb), f.K, net.cfg.input_hw) for f in frames]).astype(np.float32) / 255
+    d = {k: np.asarray(v) for k, v in decode(net.apply(params, stats, imgs), net.cfg.angle_head).items()}
+    est = np.stack([d["x"], d["y"], d["psi"]], 1)
+    det = d["o"] >= 0.5
+    obs = np.array([f.observed for f in frames])
+    for row, e, dd, f in zip(res["frames"], est, det, frames):
+        assert row["observed"] == f.observed
+        assert (row["est"] is None) == (not dd)
+        if dd:
+            np.testing.assert_allclose(row["est"], e, atol=1e-5)
+        assert (row["gt"] is None) == (not f.observed)
+    gt = np.array([f.xypsi for f in frames if f.observed])
+    ref = metrics.summarize(est[obs], gt)
+    m = res["metrics"]
+    for k in ("dx_cm", "dy_cm", "dpsi_deg"):
+        np.testing.assert_allclose(m[k], ref[k], rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(m["ate"], ref["ate"], rtol=1e-4)
+    assert m["detection"] == {"tp": int((det & obs).sum()), "fp": int((det & ~obs).sum()),
+                              "fn": int((~det & obs).sum()), "tn": int((~det & ~obs).sum())}
+    assert m["frames"] == len(frames) and m["fps"] > 0
+
+
+def test_bad_input(setup, tmp_path):
+    with pytest.raises(RhamlError, match="--modules iml,nope"):
+        main(["--data", str(setup / "set"), "--modules", "iml,nope", "--amlnet", str(setup / "ckpt")])
+    with pytest.raises(RhamlError, match="data set folder not found"):
+        main(["--data", str(tmp_path / "none"), "--amlnet", str(setup / "ckpt")])
+    with pytest.raises(RhamlError, match="no Orbax checkpoints"):
+        main(["--data", str(setup / "set"), "--amlnet", str(tmp_path)])
+    with pytest.raises(RhamlError, match="scene 99 not found"):
+        main(["--data", str(setup / "set"), "--scene", "99", "--amlnet", str(setup / "ckpt")])
