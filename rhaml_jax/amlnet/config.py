@@ -45,7 +45,7 @@ AngleHead = Literal["psi", "cossin"]
 @dataclass(frozen=True)
 class AMLNetConfig:
     """AMLNet: stem 4x4/4 + BN; stages of AIncep blocks; BN + conv 2x2/2 between stages;
-    global average pooling; FC neck with GELU; linear head.
+    global average pooling (or flatten, see `pool`); FC neck with GELU; linear head.
 
     acn_kernels: the set K of ACN kernel sizes; () means the plain 3x3 depthwise branch.
     acn_dense: ACN 1xk / kx1 kernels dense over the C/8 branch channels (paper size) or

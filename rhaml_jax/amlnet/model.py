@@ -1,9 +1,10 @@
 """AMLNet (DESIGN.md section 7): stem 4x4/4 + BN; stages of AIncep blocks with BN + conv
-2x2/2 downsampling before stages 2-4; global average pooling; FC neck (GELU); linear head.
+2x2/2 downsampling before stages 2-4; global average pooling (or, with pool="flatten", the
+whole final grid); FC neck (GELU); linear head, scaled to metres by `scale_head`.
 
 Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std).
 Output: raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
-angle_head = "cossin"; `heads.decode` turns either into (o probability, x, y, psi).
+angle_head = "cossin"; `loss.decode` turns either into (o probability, x, y, psi).
 """
 
 from __future__ import annotations
@@ -68,7 +69,6 @@ class AMLNet(nnx.Module):
         widths = (cfg.dims[-1] * (gh * gw if cfg.pool == "flatten" else 1),) + tuple(cfg.neck)
         self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
         self.head = Linear(widths[-1], num_outputs(cfg), init=init)
-
 
     def features(self, images, train: bool = False, key=None, impl: str = "fast"):
         patch = ops.patchify if impl == "fast" else ops.patchify_ref
