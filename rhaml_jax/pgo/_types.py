@@ -51,7 +51,8 @@ class SolverConfig:
     robust: "none", "huber" or "cauchy" on the Mahalanobis norm s = sqrt(r^T Lambda r),
         with threshold `robust_delta` (in units of standard deviations), solved by IRLS.
     Stops when the cost decrease is below `relative_tolerance` * cost or below
-    `absolute_tolerance`, or after `max_iterations` linear solves, or when the damping
+    `absolute_tolerance` (either floored at the cost's rounding error, 64 eps * cost: in
+    float32 about 8e-6 relative), or after `max_iterations` linear solves, or when the damping
     exceeds `max_lambda` (no step reduces the cost any more).
     """
 
