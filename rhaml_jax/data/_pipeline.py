@@ -72,22 +72,33 @@ class OnTheFly:
 @dataclasses.dataclass
 class FromDisk:
     """Examples of a BOP data set's `split` at width x height through the network's camera
-    (any image size and intrinsics on disk, see `network_image`)."""
+    (any image size and intrinsics on disk, see `network_image`).
+
+    Images are kept in memory at the network's size once decoded, as long as the whole split
+    fits in `cache_bytes` (18 k images at 128 x 160 take 1.1 GB): decoding and resampling a
+    PNG took 20 ms, about a third of a `cpu` training step's time per image."""
 
     root: Path
     width: int
     height: int
     split: str | None = "train"
+    cache_bytes: int = 4 << 30
 
     def __post_init__(self):
         self._frames = read_bop(self.root, self.split)
         self.size = len(self._frames)
         if self.size == 0:
             raise RhamlError(f"{self.root}: split {self.split!r} has no images")
+        fits = self.size * self.width * self.height * 3 <= self.cache_bytes
+        self._cache: dict[int, np.ndarray] | None = {} if fits else None
 
     def example(self, index: int):
         f = self._frames[index]
-        img = network_image(load_rgb(f.rgb), f.K, (self.height, self.width))
+        img = None if self._cache is None else self._cache.get(index)
+        if img is None:
+            img = network_image(load_rgb(f.rgb), f.K, (self.height, self.width))
+            if self._cache is not None:
+                self._cache[index] = img
         pose = f.xypsi
         return img, float(f.observed), (np.zeros(3, np.float32) if pose is None else pose.astype(np.float32))
 
