@@ -14,9 +14,11 @@ case "$what" in
   main)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e .
     # Until the demo lands (pipeline issue), the main job is the most complete one there is:
-    # render the paper's circle evaluation scenario (BOP images + TUM trajectories) into out/.
-    echo "rhaml_jax: the demo is not built yet; running the most complete job: rendering the circle scenario into out/circle" >&2
-    exec .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle "$@"
+    # render the paper's circle scenario (BOP images + TUM trajectories; a rerun skips what is
+    # complete) and run the shipped AMLNet on it, printing the paper's metrics.
+    echo "rhaml_jax: the demo is not built yet; running the most complete job: AMLNet (IML) on the circle scenario in out/circle" >&2
+    .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle
+    exec .venv/bin/python -m rhaml_jax.evaluate --data out/circle --modules iml --json out/circle_iml.json "$@"
     ;;
   test)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev]'

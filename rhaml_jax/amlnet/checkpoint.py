@@ -107,7 +107,7 @@ def export_weights(run_dir: str | Path, out_dir: str | Path, step: int | None = 
     src = Checkpoints(run_dir, read_only=True)
     try:
         step = src.latest_step() if step is None else step
-        meta = dict(src.meta(step), weights_only=True, exported_from=str(run_dir), **(extra_meta or {}))
+        meta = {**src.meta(step), "weights_only": True, "exported_from": str(run_dir), **(extra_meta or {})}
     finally:
         src.close()
     dst = Checkpoints(out_dir, keep=1)
