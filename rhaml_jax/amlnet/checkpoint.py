@@ -31,19 +31,19 @@ class Checkpoints:
         self.dir = Path(run_dir).absolute() / "checkpoints"
         if read_only and not self.dir.is_dir():
             raise RhamlError(f"{run_dir}: no Orbax checkpoints (missing folder {self.dir})")
-        if read_only:  # Orbax logs three warnings that a read-only manager neither saves nor prunes
+        if read_only:  # a read-only manager neither saves nor prunes
             opts = ocp.CheckpointManagerOptions(max_to_keep=None, save_interval_steps=0, create=False,
                                                 enable_async_checkpointing=False, read_only=True)
-            absl = logging.getLogger("absl")
-            level = absl.level
-            absl.setLevel(logging.ERROR)
-            try:
-                self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
-            finally:
-                absl.setLevel(level)
         else:
             opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, enable_async_checkpointing=False)
+        absl = logging.getLogger("absl")
+        level = absl.level
+        if read_only:
+            absl.setLevel(logging.ERROR)  # Orbax warns that the directory is read only
+        try:
             self.mngr = ocp.CheckpointManager(self.dir, options=opts, item_names=("state", "meta"))
+        finally:
+            absl.setLevel(level)
 
     def latest_step(self) -> int | None:
         return self.mngr.latest_step()

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._banded import pcr_solve, thomas_solve
+from ._banded import thomas_solve
 from ._residuals import linearize
 from ._robust import robust_rho_and_weight
 from ._solver import Problem, damping, lm_loop
@@ -78,7 +78,7 @@ def ladder_normal_equations(T, p: Problem, a_observes, cfg: SolverConfig):
     return D, Lo, gn.reshape(K + 1, 6), cost
 
 
-def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig, tridiagonal: str = "thomas"):
+def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig):
     """The GN / LM loop on a ladder graph (p: the RHAML graph's arrays, struct unused).
     Returns (state, initial cost) as `lm_loop`."""
     K = a_observes.shape[0]
@@ -93,12 +93,7 @@ def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig, tridiagonal: str =
         diag = jnp.where(gauge, 0.0, jnp.diagonal(D, axis1=-2, axis2=-1))
         damp = jnp.where(gauge, 0.0, damping(diag, lam))  # (K+1, 6)
         D = D + damp[:, :, None] * jnp.eye(6, dtype=D.dtype)
-        rhs = -g[..., None]
-        if tridiagonal == "pcr":
-            Up = jnp.swapaxes(jnp.concatenate([Lo[1:], jnp.zeros_like(Lo[:1])]), -1, -2)
-            x = pcr_solve(D, Lo, Up, rhs)[..., 0]
-        else:
-            x = thomas_solve(D, Lo, rhs)[..., 0]
+        x = thomas_solve(D, Lo, -g[..., None])[..., 0]
         x = jnp.where(gauge, 0.0, x)
         return x.reshape(2 * K + 2, 3), jnp.sum(g * x), jnp.sum(damp * x * x)
 
