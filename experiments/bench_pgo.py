@@ -12,6 +12,7 @@ median over repeats of optimizer construction + optimize(). Both report GTSAM's 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import sys
@@ -76,11 +77,11 @@ def bench_datasets(names, repeats, rows):
         print(rows[-1], flush=True)
 
 
-def _time_rhaml(rv, repeats):
+def _time_rhaml(rv, repeats, config):
     """(median s, compile wall s, compile CPU s, result) of jitted `rhaml_pgo` on `rv`."""
     fn = jax.jit(rhaml_pgo, static_argnames="config")
     t, c = time.perf_counter(), time.process_time()
-    compiled = fn.lower(rv).compile()
+    compiled = fn.lower(rv, config=config).compile()
     compile_s, compile_cpu = time.perf_counter() - t, time.process_time() - c
     out = jax.block_until_ready(compiled(rv))
     ts = []
@@ -92,18 +93,25 @@ def _time_rhaml(rv, repeats):
 
 
 def bench_rhaml(K, repeats):
-    """Ours: jitted `rhaml_pgo` (Algorithm 1 end to end) on the padded K-rendezvous input, in
-    float64 and in float32 (JAX's default, what the pipeline runs); GTSAM: Gauss-Newton on the
-    same graph (`rhaml_pose_graph`, same initial guess)."""
+    """Ours: jitted `rhaml_pgo` (Algorithm 1 end to end) on the padded K-rendezvous input, with
+    each band solver, in float64 and in float32 (JAX's default, what the pipeline runs);
+    GTSAM: Gauss-Newton on the same graph (`rhaml_pose_graph`, same initial guess).
+    Returns ({(band solver, dtype): (median s, compile s, compile CPU s, iterations, cost)},
+    (GTSAM median s, GTSAM cost, GTSAM iterations))."""
     sim = simulate_rendezvous(K, seed=0)
-    t, compile_s, compile_cpu, out = _time_rhaml(jax.tree.map(jnp.asarray, sim.rendezvous), repeats)
-    with jax.enable_x64(False):
-        rv32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if a.dtype == np.float64 else jnp.asarray(a),
-                            sim.rendezvous)
-        t32, _, _, out32 = _time_rhaml(rv32, repeats)
-    g_t, g_err, g_its = gtsam_run(rhaml_pose_graph(sim.rendezvous), "gn", repeats)
-    return (t, compile_s, compile_cpu, int(out.iterations), float(out.final_cost), g_t, g_err, g_its,
-            t32, int(out32.iterations))
+    rv64 = jax.tree.map(jnp.asarray, sim.rendezvous)
+    out = {}
+    for how in ("thomas", "lapack"):
+        cfg = RhamlPGOConfig()
+        cfg = dataclasses.replace(cfg, solver=dataclasses.replace(cfg.solver, band_solver=how))
+        for dt in ("float64", "float32"):
+            with jax.enable_x64(dt == "float64"):
+                rv = rv64 if dt == "float64" else jax.tree.map(
+                    lambda a: jnp.asarray(a, jnp.float32) if a.dtype == np.float64 else jnp.asarray(a), sim.rendezvous)
+                t, c, ccpu, res = _time_rhaml(rv, repeats, cfg)
+                out[how, dt] = (t, c, ccpu, int(res.iterations), float(res.final_cost))
+                print((how, dt), out[how, dt], flush=True)
+    return out, gtsam_run(rhaml_pose_graph(sim.rendezvous), "gn", repeats)
 
 
 def outlier_table(K, seeds):
@@ -152,14 +160,17 @@ def main():
             lines.append(f"| {n} | {N} | {E} | {m} | {c:.6g} | {it} | {t:.3f} | {ct:.1f} | {gc:.6g} | {git} | {gt:.3f} "
                          f"| {gt / t:.2f} |")
         lines.append("")
-    t, ct, ccpu, it, cost, gt, gcost, git, t32, it32 = bench_rhaml(args.rhaml_k, args.rhaml_repeats)
+    res, (gt, gcost, git) = bench_rhaml(args.rhaml_k, args.rhaml_repeats)
     lines += [f"RHAML two-robot graph, {args.rhaml_k} rendezvous ({2 * args.rhaml_k + 2} poses, "
-              f"{3 * args.rhaml_k} edges), jitted `rhaml_pgo` (Algorithm 1 end to end, ladder solver): "
-              f"median {t * 1e3:.2f} ms over {args.rhaml_repeats} runs, {it} iterations, final cost {cost:.6g}, "
-              f"compile {ct:.1f} s wall ({ccpu:.1f} s CPU). GTSAM Gauss-Newton on the same graph "
-              f"(`rhaml_pose_graph`, same initial guess; graph construction not included): median "
-              f"{gt * 1e3:.2f} ms, {git} iterations, final cost {gcost:.6g}. In float32: median {t32 * 1e3:.2f} ms, "
-              f"{it32} iterations. Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.", ""]
+              f"{3 * args.rhaml_k} edges), jitted `rhaml_pgo` (Algorithm 1 end to end, ladder solver), "
+              f"medians over {args.rhaml_repeats} runs; GTSAM Gauss-Newton on the same graph (`rhaml_pose_graph`, "
+              f"same initial guess; graph construction not included): median {gt * 1e3:.2f} ms, {git} iterations, "
+              f"final cost {gcost:.6g}. Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.", "",
+              "| band solver | dtype | median ms | GTSAM / ours | iterations | final cost | compile s (CPU s) |",
+              "|---|---|---|---|---|---|---|"]
+    for (how, dt), (t, ct, ccpu, it, cost) in res.items():
+        lines.append(f"| {how} | {dt} | {t * 1e3:.2f} | {gt / t:.2f} | {it} | {cost:.6g} | {ct:.1f} ({ccpu:.1f}) |")
+    lines.append("")
     orows = outlier_table(40, args.outlier_seeds)
     lines += [f"Outliers: {args.outlier_seeds} simulated sequences of 40 rendezvous per row; a fraction of the mutual "
               "observations replaced by wrong ones (off by 1-3 m and 90-180 deg); error of A_0 T B_0.", "",

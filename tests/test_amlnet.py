@@ -12,10 +12,10 @@ from rhaml_jax.amlnet import ops
 from rhaml_jax.amlnet.acn import acn, acn_reference, init_acn_params
 from rhaml_jax.amlnet.block import AIncepBlock
 from rhaml_jax.amlnet.init import HostInit
-from rhaml_jax.amlnet.config import (AMLNetConfig, config_from_dict, config_to_dict, get_config)
+from rhaml_jax.amlnet.config import (AMLNetConfig, config_from_dict, config_to_dict, get_config, num_outputs)
 from rhaml_jax.amlnet.count import count_macs, count_params
 from rhaml_jax.amlnet.functional import build, check_images
-from rhaml_jax.amlnet.model import scale_head
+from rhaml_jax.amlnet.model import attention_pool, scale_head
 from rhaml_jax.errors import RhamlError
 
 TOL = 1e-5
@@ -111,7 +111,7 @@ def test_block_matches_reference(name):
     assert float(jnp.abs(fe - x).max()) > 1e-2  # the branch is not negligible
 
 
-@pytest.mark.parametrize("variant", [{}, {"pool": "flatten", "angle_head": "cossin"}])
+@pytest.mark.parametrize("variant", [{}, {"pool": "flatten", "angle_head": "cossin"}, {"pool": "attend", "angle_head": "axis"}])
 def test_network_matches_reference(variant):
     cfg = replace(get_config("micro"), **variant)
     net = build(cfg, jax.random.key(0))
@@ -123,10 +123,23 @@ def test_network_matches_reference(variant):
         return [net.train_apply(p, net.batch_stats, x, None, impl) for impl in ("fast", "reference")]
 
     (a, sa), (b, sb) = run(params)
-    assert a.shape == (2, 5 if variant else 4)
+    assert a.shape == (2, num_outputs(cfg))
     np.testing.assert_allclose(a, b, atol=TOL, rtol=TOL)
     for u, v in zip(jax.tree.leaves(sa), jax.tree.leaves(sb)):
         np.testing.assert_allclose(u, v, atol=TOL, rtol=TOL)
+
+
+def test_attention_pool_reads_the_cell_it_points_at():
+    """A score peaked at one cell returns that cell's features and its centre in [-1, 1];
+    uniform scores return the global average and the grid's centre."""
+    x = jax.random.normal(jax.random.key(0), (2, 4, 5, 3))
+    score = jnp.zeros((2, 4, 5)).at[0, 3, 1].set(50.0).at[1, 0, 4].set(50.0)
+    out = attention_pool(x, score)
+    np.testing.assert_allclose(out[0], [*x[0, 3, 1], 1.0, -0.5], atol=1e-5)
+    np.testing.assert_allclose(out[1], [*x[1, 0, 4], -1.0, 1.0], atol=1e-5)
+    flat = attention_pool(x, jnp.zeros((2, 4, 5)))
+    np.testing.assert_allclose(flat[:, :3], x.mean(axis=(1, 2)), atol=1e-6)
+    np.testing.assert_allclose(flat[:, 3:], 0.0, atol=1e-6)
 
 
 def test_head_is_standardised():

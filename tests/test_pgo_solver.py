@@ -106,6 +106,46 @@ def test_linear_solvers_agree(x64):
     np.testing.assert_allclose(res["dense"].poses[0], g.poses[0], atol=1e-12)  # the gauge stays put
 
 
+def _block_tridiagonal(M=7, b=6, seed=0):
+    """A random SPD block-tridiagonal system: (D, Lo, r) and its dense matrix."""
+    rng = np.random.default_rng(seed)
+    n = M * b
+    J = rng.normal(size=(2 * n, n)) * (np.abs(np.subtract.outer(np.arange(2 * n) // 2, np.arange(n))) < 2 * b - 1)
+    A = J.T @ J + np.eye(n)
+    A *= np.abs(np.subtract.outer(np.arange(n) // b, np.arange(n) // b)) <= 1  # keep the block band
+    A += n * np.eye(n)  # still SPD after the cut
+    D = np.stack([A[i * b:(i + 1) * b, i * b:(i + 1) * b] for i in range(M)])
+    Lo = np.stack([np.zeros((b, b))] + [A[i * b:(i + 1) * b, (i - 1) * b:i * b] for i in range(1, M)])
+    r = rng.normal(size=(M, b, 2))
+    return D, Lo, r, A
+
+
+@pytest.mark.parametrize("how,M", [("thomas", 7), ("twisted", 7), ("twisted", 8), ("twisted", 2), ("lapack", 7)])
+def test_band_solvers_match_a_dense_solve(x64, how, M):
+    from rhaml_jax.pgo._banded import band_solve
+
+    D, Lo, r, A = _block_tridiagonal(M)
+    D, Lo, r = jnp.asarray(D), jnp.asarray(Lo), jnp.asarray(r)
+    x = np.asarray(jax.jit(band_solve, static_argnums=3)(D, Lo, r, how))
+    ref = np.linalg.solve(A, np.asarray(r).reshape(-1, 2)).reshape(r.shape)
+    np.testing.assert_allclose(x, ref, rtol=1e-10, atol=1e-12)
+    x32 = np.asarray(band_solve(*(jnp.asarray(a, jnp.float32) for a in (D, Lo, r)), how))
+    assert x32.dtype == np.float32
+    np.testing.assert_allclose(x32, ref, rtol=1e-3, atol=1e-4)
+    bad = D.at[M // 2].multiply(-1.0)  # not positive definite: a non-finite step, which the solver damps
+    assert not np.isfinite(np.asarray(band_solve(bad, Lo, r, how))).all()
+    batched = jax.vmap(lambda d: band_solve(d, Lo, r, how))(jnp.stack([D, 2 * D]))
+    np.testing.assert_allclose(batched[0], ref, rtol=1e-10, atol=1e-12)
+
+
+def test_lapack_band_solver_matches_the_scan(x64):
+    g = ladder(seed=4)
+    a = optimize(g, SolverConfig(linear_solver="banded"))
+    b = optimize(g, SolverConfig(linear_solver="banded", band_solver="lapack"))
+    assert b.iterations == a.iterations and b.final_cost == pytest.approx(a.final_cost, rel=1e-12)
+    np.testing.assert_allclose(b.poses, a.poses, atol=1e-10)
+
+
 def test_lm_and_gn_reach_the_same_minimum(x64):
     g = ladder(seed=3)
     gn = optimize(g, SolverConfig(method="gn", linear_solver="banded"))

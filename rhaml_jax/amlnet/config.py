@@ -39,7 +39,7 @@ __all__ = [
     "num_outputs",
 ]
 
-AngleHead = Literal["psi", "cossin"]
+AngleHead = Literal["psi", "cossin", "axis"]
 
 
 @dataclass(frozen=True)
@@ -51,10 +51,14 @@ class AMLNetConfig:
     acn_dense: ACN 1xk / kx1 kernels dense over the C/8 branch channels (paper size) or
       depthwise.
     angle_head: "psi" outputs (o, x, y, psi) as in the paper; "cossin" outputs
-      (o, x, y, cos psi, sin psi) and decodes psi with atan2 (documented option).
+      (o, x, y, cos psi, sin psi) and decodes psi with atan2; "axis" adds (cos 2psi, sin 2psi),
+      which survive a front/back look-alike robot (`loss` says why; documented options).
     pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
       feature grid to the neck, so the image position of the robot (its bearing) reaches the
-      head directly instead of through zero-padding artefacts (a documented option).
+      head directly instead of through zero-padding artefacts; "attend" adds to the flattened
+      grid an attention-pooled feature vector and its soft-argmax cell position
+      (`model.attention_pool`), a path on which what is learned about the robot's look is
+      shared by all image positions (documented options).
     """
 
     name: str
@@ -68,7 +72,7 @@ class AMLNetConfig:
     branch_ratio: int = 8
     neck: tuple[int, ...] = (1024, 1024)
     angle_head: AngleHead = "psi"
-    pool: Literal["gap", "flatten"] = "gap"
+    pool: Literal["gap", "flatten", "attend"] = "gap"
     layer_scale_init: float = 1e-6
     drop_path: float = 0.0
     kind: Literal["amlnet"] = "amlnet"
@@ -87,10 +91,10 @@ class AMLNetConfig:
         h, w = self.input_hw
         if h % stride or w % stride:
             raise RhamlError(f"config {self.name}: input_hw {self.input_hw} must be divisible by {stride}")
-        if self.angle_head not in ("psi", "cossin"):
-            raise RhamlError(f"config {self.name}: angle_head must be 'psi' or 'cossin'")
-        if self.pool not in ("gap", "flatten"):
-            raise RhamlError(f"config {self.name}: pool must be 'gap' or 'flatten'")
+        if self.angle_head not in ("psi", "cossin", "axis"):
+            raise RhamlError(f"config {self.name}: angle_head must be 'psi', 'cossin' or 'axis', got {self.angle_head!r}")
+        if self.pool not in ("gap", "flatten", "attend"):
+            raise RhamlError(f"config {self.name}: pool must be 'gap', 'flatten' or 'attend', got {self.pool!r}")
 
     @property
     def final_grid(self) -> tuple[int, int]:
@@ -149,8 +153,8 @@ _CPU = dict(
     dims=(32, 64, 128, 256),
     mlp_ratios=(4, 4, 4, 3),
     neck=(256, 256),
-    pool="flatten",
-    angle_head="cossin",
+    pool="attend",
+    angle_head="axis",
     layer_scale_init=0.1,
 )
 _TINY = dict(input_hw=(32, 32), depths=(1, 1, 1, 1), dims=(16, 16, 32, 32), mlp_ratios=(2, 2, 2, 2), neck=(16,), layer_scale_init=0.1)
@@ -187,7 +191,7 @@ def get_config(name: str) -> ModelConfig:
 
 
 def num_outputs(cfg: ModelConfig) -> int:
-    return 5 if cfg.angle_head == "cossin" else 4
+    return {"psi": 4, "cossin": 5, "axis": 7}[cfg.angle_head]
 
 
 def config_to_dict(cfg: ModelConfig) -> dict:

@@ -115,7 +115,7 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     tr = [r for r in rows if "loss" in r]
     axes[0].semilogy([r["step"] for r in tr], [r["loss"] for r in tr], label="L_A")
-    for k, lab in (("loss_o", "L_o"), ("loss_p", "L_p")):
+    for k, lab in (("loss_o", "L_o"), ("loss_p", "L_p"), ("loss_psi", "heading term")):
         axes[0].semilogy([r["step"] for r in tr if k in r], [r[k] for r in tr if k in r], label=lab, alpha=0.7)
     axes[0].set_title("training loss"); axes[0].set_xlabel("step"); axes[0].legend()
     va = [r for r in rows if "val_dx_cm" in r]

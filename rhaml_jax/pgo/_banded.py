@@ -22,7 +22,7 @@ import numpy as np
 
 from ._normal_equations import BlockStructure
 
-__all__ = ["BandLayout", "band_layout", "node_bandwidth", "solve_banded", "pcr_solve", "thomas_solve"]
+__all__ = ["BandLayout", "band_layout", "band_solve", "lapack_solve", "node_bandwidth", "solve_banded", "pcr_solve", "thomas_solve", "twisted_solve"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["diag_pos", "diag_pos_t", "sub_pos", "pad_diag"],
@@ -125,37 +125,129 @@ def pcr_solve(D, Lo, Up, r):
     return _spd_solve(D, r)
 
 
-def thomas_solve(D, Lo, r):
-    """Solves the same SPD block tridiagonal system (Up[i] = Lo[i+1]^T) by block LDL^T: one
-    forward and one backward `lax.scan` over the M groups. Fewer operations than
-    `pcr_solve` (which is log2 M times the work) but M sequential steps; for M = 101 it
-    measured 0.44 ms against pcr's 1.05 ms here (experiments/profile_rhaml_pgo.py)."""
+def _eliminate(D, Lo, Up, r):
+    """Forward block elimination down a chain: D, Lo, Up (h, b, b) with Lo[i] = A[i, i-1]
+    (Lo[0] ignored), Up[i] = A[i, i+1], r (h, b, k) -> W = S_i^-1 Up[i], y = S_i^-1 (r_i -
+    Lo_i y_{i-1}) per group, S_i = D_i - Lo_i W_{i-1} the Schur complements."""
     b = D.shape[-1]
 
-    # S_i needs S_{i-1}^-1 A[i-1, i] = S_{i-1}^-1 Lo[i]^T: the solve happens in the step
-    Up_next = jnp.swapaxes(jnp.concatenate([Lo[1:], jnp.zeros_like(Lo[:1])]), -1, -2)  # A[i, i+1]
+    def step(X, x):
+        Di, Li, URi = x  # X = S_{i-1}^-1 [A[i-1, i], rhs_{i-1}] = [W, y]_{i-1}
+        P = Li @ X  # one product for both: [Lo_i W_{i-1}, Lo_i y_{i-1}]
+        X = _spd_solve((Di - P[:, :b])[None], (URi - P.at[:, :b].set(0.0))[None])[0]
+        return X, X
 
-    def step(carry, x):
-        W, y = carry  # S_{i-1}^-1 A[i-1, i], S_{i-1}^-1 rhs_{i-1}
-        Di, Li, Ui, ri = x
-        S = Di - Li @ W
-        X = _spd_solve(S[None], jnp.concatenate([Ui, ri - Li @ y], axis=-1)[None])[0]
-        W, y = X[:, :b], X[:, b:]
-        return (W, y), (W, y)
+    X0 = jnp.zeros((b, b + r.shape[-1]), D.dtype)
+    _, X = jax.lax.scan(step, X0, (D, Lo.at[0].set(0.0), jnp.concatenate([Up, r], axis=-1)))
+    return X[..., :b], X[..., b:]
 
-    z = jnp.zeros((b, b), D.dtype)
-    _, (W, y) = jax.lax.scan(step, (z, jnp.zeros_like(r[0])), (D, Lo.at[0].set(0.0), Up_next, r))
+
+def _substitute(W, y, x_end):
+    """Back substitution up the chain: x_i = y_i - W_i x_{i+1}, starting from x_end = x_h."""
 
     def bwd(xnext, x):
         Wi, yi = x
         xi = yi - Wi @ xnext
         return xi, xi
 
-    _, xs = jax.lax.scan(bwd, jnp.zeros_like(r[0]), (W, y), reverse=True)
-    return xs
+    return jax.lax.scan(bwd, x_end, (W, y), reverse=True)[1]
 
 
-def solve_banded(blocks: jax.Array, g: jax.Array, damp: jax.Array, lay: BandLayout) -> jax.Array:
+def _up(Lo):
+    """A[i, i+1] = Lo[i+1]^T (zero for the last group)."""
+    return jnp.swapaxes(jnp.concatenate([Lo[1:], jnp.zeros_like(Lo[:1])]), -1, -2)
+
+
+def thomas_solve(D, Lo, r):
+    """Solves the same SPD block tridiagonal system (Up[i] = Lo[i+1]^T) by block LDL^T: one
+    forward and one backward `lax.scan` over the M groups. Fewer operations than
+    `pcr_solve` (which is log2 M times the work) but M sequential steps of ~2.2 us of XLA
+    kernel overhead each; `twisted_solve` halves their number."""
+    return _substitute(*_eliminate(D, Lo, _up(Lo), r), jnp.zeros_like(r[0]))
+
+
+def twisted_solve(D, Lo, r):
+    """The same solve by a twisted (burn-at-both-ends) block factorisation: the groups above
+    the middle one are eliminated downwards and those below it upwards, both chains in one
+    batched scan of about M / 2 steps, then the middle group is solved and both chains are
+    substituted back outwards, again together. The same work as `thomas_solve` in half the
+    sequential steps, which is what costs here."""
+    M, b = D.shape[0], D.shape[-1]
+    if M < 3:
+        return thomas_solve(D, Lo, r)
+    m = M // 2  # the middle group; m groups above it, M - 1 - m (= m or m - 1) below
+    Up = _up(Lo)
+    # Below the middle, in reverse: the chain M-1, M-2, ..., m+1 sees A[g, g+1] as its lower
+    # and A[g, g-1] as its upper coupling. A dummy group (identity, uncoupled) evens the lengths.
+    pad = m - (M - 1 - m)
+    dummy = lambda a, fill: jnp.concatenate([fill(a[:pad]), a])  # noqa: E731
+    eye = lambda a: jnp.broadcast_to(jnp.eye(b, dtype=a.dtype), a.shape)  # noqa: E731
+    rev = slice(M - 1, m, -1)
+    chains = (jnp.stack([D[:m], dummy(D[rev], eye)]), jnp.stack([Lo[:m], dummy(Up[rev], jnp.zeros_like)]),
+              jnp.stack([Up[:m], dummy(Lo[rev], jnp.zeros_like)]), jnp.stack([r[:m], dummy(r[rev], jnp.zeros_like)]))
+    W, y = jax.vmap(_eliminate)(*chains)  # (2, m, b, b), (2, m, b, k)
+    S = D[m] - Lo[m] @ W[0, -1] - Up[m] @ W[1, -1]
+    x_m = _spd_solve(S[None], (r[m] - Lo[m] @ y[0, -1] - Up[m] @ y[1, -1])[None])[0]
+    x = jax.vmap(_substitute, in_axes=(0, 0, None))(W, y, x_m)  # (2, m, b, k)
+    return jnp.concatenate([x[0], x_m[None], x[1, pad:][::-1]])
+
+
+def _band_storage(D, Lo):
+    """LAPACK's lower band storage of the SPD block-tridiagonal matrix (NumPy, host side):
+    D, Lo (M, b, b) -> (2b, M b) with ab[k, j] = A[j + k, j], half-bandwidth 2b - 1."""
+    M, b = D.shape[0], D.shape[-1]
+    X = np.concatenate([D, np.concatenate([Lo[1:], np.zeros_like(Lo[:1])])], axis=1)  # (M, 2b, b): A[bi + m, bi + c]
+    k, c = np.meshgrid(np.arange(2 * b), np.arange(b), indexing="ij")  # (2b, b)
+    ab = np.where(k + c < 2 * b, X[:, np.minimum(k + c, 2 * b - 1), c], 0.0)  # (M, 2b, b); past the matrix: 0
+    return np.ascontiguousarray(np.moveaxis(ab, 0, 1).reshape(2 * b, M * b))
+
+
+def _host_pbsv(D, Lo, r, wide: bool):
+    from scipy.linalg import lapack
+
+    if wide:  # float64 travels as uint32 pairs (see `lapack_solve`)
+        D, Lo, r = (np.ascontiguousarray(a).view(np.float64)[..., 0] for a in (D, Lo, r))
+    M, b, k = r.shape
+    pbsv = lapack.dpbsv if wide else lapack.spbsv
+    _, x, info = pbsv(_band_storage(D, Lo), r.reshape(M * b, k), lower=1)
+    if info != 0:  # not positive definite (or a bad argument): a non-finite step, the solver damps
+        x = np.full((M * b, k), np.nan, r.dtype)
+    x = x.reshape(M, b, k)
+    if wide:
+        return np.ascontiguousarray(x, np.float64).view(np.uint32).reshape(*x.shape, 2)
+    return np.asarray(x, np.float32)
+
+
+def lapack_solve(D, Lo, r):
+    """Solves the same SPD block tridiagonal system as `thomas_solve` with LAPACK's banded
+    Cholesky (?pbsv) on the host, through one `jax.pure_callback` per solve: no per-group
+    kernel overhead, but the callback's own (see BENCHMARKS.md for which wins where); on an
+    accelerator it also copies the blocks to the host and back. Not differentiable (the
+    solver's while loop is not either)."""
+    # As in `_linear.solve_sparse`: XLA runs the callback where a caller's `jax.enable_x64`
+    # is not active and JAX would cast float64 to float32, so float64 crosses as uint32 pairs.
+    wide = r.dtype == jnp.float64
+    args = (D, Lo, r)
+    out = jax.ShapeDtypeStruct(r.shape, r.dtype)
+    if wide:
+        args = tuple(jax.lax.bitcast_convert_type(a, jnp.uint32) for a in args)
+        out = jax.ShapeDtypeStruct((*r.shape, 2), jnp.uint32)
+    x = jax.pure_callback(functools.partial(_host_pbsv, wide=wide), out, *args, vmap_method="sequential")
+    return jax.lax.bitcast_convert_type(x, jnp.float64) if wide else x
+
+
+def band_solve(D, Lo, r, how: str):
+    """The SPD block-tridiagonal solve by `how` = "thomas" or "lapack" (SolverConfig.band_solver)."""
+    if how == "lapack":
+        return lapack_solve(D, Lo, r)
+    if how == "thomas":
+        return thomas_solve(D, Lo, r)
+    if how == "twisted":
+        return twisted_solve(D, Lo, r)
+    raise ValueError(f"band_solver must be 'twisted', 'thomas' or 'lapack', got {how!r}")
+
+
+def solve_banded(blocks: jax.Array, g: jax.Array, damp: jax.Array, lay: BandLayout, how: str = "thomas") -> jax.Array:
     """blocks (B, 3, 3), g (nv, 3), damp (nv, 3) -> delta (nv, 3)."""
     nv = g.shape[0]
     w, M = lay.width, lay.groups
@@ -168,7 +260,6 @@ def solve_banded(blocks: jax.Array, g: jax.Array, damp: jax.Array, lay: BandLayo
     C = jnp.zeros((M, b * b), blocks.dtype)
     C = _scatter_blocks(C, lay.sub_pos, jnp.swapaxes(blocks, -1, -2), b).reshape(M, b, b)
     rhs = jnp.zeros((M * w * 3,), g.dtype).at[: 3 * nv].set(-g.reshape(-1)).reshape(M, b, 1)
-    Up = jnp.swapaxes(C, -1, -2).at[M - 1].set(0.0)  # A[i, i+1] = C[i]^T
     Lo = jnp.concatenate([jnp.zeros_like(C[:1]), C[:-1]])  # A[i, i-1] = C[i-1]
-    x = pcr_solve(D, Lo, Up, rhs)
+    x = band_solve(D, Lo, rhs, how)
     return x.reshape(-1)[: 3 * nv].reshape(nv, 3)

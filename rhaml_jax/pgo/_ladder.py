@@ -6,7 +6,8 @@ odometry A_{k-1} -> A_k, B's odometry B_{k-1} -> B_k and the mutual edge between
 tridiagonal with 6 x 6 blocks: D_m holds the two nodes' own blocks and the mutual coupling,
 the sub-diagonal block A[m, m-1] = diag(odometry A, odometry B couplings). These blocks are
 put together here directly from the per-edge J^T W J products with reshapes and one shift
-(no scatter, no block lists), and the system is solved by `thomas_solve` (block LDL^T).
+(no scatter, no block lists), and the system is solved by `band_solve` (block LDL^T in XLA
+or LAPACK's banded Cholesky on the host, `SolverConfig.band_solver`).
 The gauge A_0 stays in group 0 as a variable with an identity block, no coupling and a zero
 right-hand side, so its step is exactly zero.
 """
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._banded import thomas_solve
+from ._banded import band_solve
 from ._residuals import linearize
 from ._robust import robust_rho_and_weight
 from ._solver import Problem, damping, lm_loop
@@ -93,7 +94,7 @@ def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig):
         diag = jnp.where(gauge, 0.0, jnp.diagonal(D, axis1=-2, axis2=-1))
         damp = jnp.where(gauge, 0.0, damping(diag, lam))  # (K+1, 6)
         D = D + damp[:, :, None] * jnp.eye(6, dtype=D.dtype)
-        x = thomas_solve(D, Lo, -g[..., None])[..., 0]
+        x = band_solve(D, Lo, -g[..., None], cfg.band_solver)[..., 0]
         x = jnp.where(gauge, 0.0, x)
         return x.reshape(2 * K + 2, 3), jnp.sum(g * x), jnp.sum(damp * x * x)
 

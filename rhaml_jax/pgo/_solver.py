@@ -157,7 +157,7 @@ def _iterate(p: Problem, cfg: SolverConfig, linear: str):
         if linear == "dense":
             delta = solve_dense(blocks, g, damp, p.struct)
         elif linear == "banded":
-            delta = solve_banded(blocks, g, damp, p.band)
+            delta = solve_banded(blocks, g, damp, p.band, cfg.band_solver)
         else:
             delta = solve_sparse(blocks, g, damp, p.layout)
         full = jnp.concatenate([delta, jnp.zeros((1, 3), dt)])[p.struct.var_of_node]  # (N, 3)

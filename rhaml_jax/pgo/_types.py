@@ -43,11 +43,14 @@ class SolverConfig:
 
     method: "gn" takes plain Gauss-Newton steps and damps (as LM does) only when a step is
         singular, non-finite or does not reduce the cost; "lm" damps from the start.
-    linear_solver: "auto" picks "banded" (block-tridiagonal cyclic reduction in XLA) when
+    linear_solver: "auto" picks "banded" (a block-tridiagonal solve, see `band_solver`) when
         every edge joins nodes at most `banded_max_width` indices apart (chains, the RHAML
         graphs), else "dense" (Cholesky in XLA) up to `dense_max_nodes` nodes and "sparse"
         (block-sparse normal equations factored by QDLDL on the host through a callback, AMD
         ordering and symbolic analysis once per graph) above.
+    band_solver: how the "banded" path solves its block-tridiagonal system: "thomas" (block
+        LDL^T as an XLA scan: pure, any device) or "lapack" (LAPACK's banded Cholesky on the
+        host through one callback per solve: on a CPU several times faster, see BENCHMARKS.md).
     robust: "none", "huber" or "cauchy" on the Mahalanobis norm s = sqrt(r^T Lambda r),
         with threshold `robust_delta` (in units of standard deviations), solved by IRLS.
     Stops when the cost decrease is below `relative_tolerance` * cost or below
@@ -66,6 +69,7 @@ class SolverConfig:
     linear_solver: Literal["auto", "dense", "banded", "sparse"] = "auto"
     dense_max_nodes: int = 100
     banded_max_width: int = 4
+    band_solver: Literal["twisted", "thomas", "lapack"] = "twisted"
     robust: RobustKernel = "none"
     robust_delta: float = 1.345
     initialization: Literal["given", "chordal"] = "given"
