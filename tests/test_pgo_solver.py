@@ -120,7 +120,7 @@ def _block_tridiagonal(M=7, b=6, seed=0):
     return D, Lo, r, A
 
 
-@pytest.mark.parametrize("how,M", [("thomas", 7), ("twisted", 7), ("twisted", 8), ("twisted", 2), ("lapack", 7)])
+@pytest.mark.parametrize("how,M", [("thomas", 7), ("twisted", 7), ("twisted", 8), ("twisted", 2)])
 def test_band_solvers_match_a_dense_solve(x64, how, M):
     from rhaml_jax.pgo._banded import band_solve
 
@@ -138,10 +138,10 @@ def test_band_solvers_match_a_dense_solve(x64, how, M):
     np.testing.assert_allclose(batched[0], ref, rtol=1e-10, atol=1e-12)
 
 
-def test_lapack_band_solver_matches_the_scan(x64):
+def test_band_solvers_give_the_same_optimisation(x64):
     g = ladder(seed=4)
-    a = optimize(g, SolverConfig(linear_solver="banded"))
-    b = optimize(g, SolverConfig(linear_solver="banded", band_solver="lapack"))
+    a = optimize(g, SolverConfig(linear_solver="banded", band_solver="thomas"))
+    b = optimize(g, SolverConfig(linear_solver="banded", band_solver="twisted"))
     assert b.iterations == a.iterations and b.final_cost == pytest.approx(a.final_cost, rel=1e-12)
     np.testing.assert_allclose(b.poses, a.poses, atol=1e-10)
 

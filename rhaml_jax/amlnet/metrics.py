@@ -1,5 +1,6 @@
 """Validation metrics in the paper's terms: abs dx, dy (cm) and abs dpsi (deg, wrapped) over
-the frames with a robot in view, and detection accuracy (o > 0.5) over all frames."""
+the frames with a robot in view, and detection accuracy (o > 0.5) over all frames; also
+daxis, the heading error modulo 180 deg, which tells a front/back flip from a wrong axis."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def pose_metrics(pred: dict, observed: np.ndarray, pose: np.ndarray) -> dict:
         dy = 100 * np.abs(np.asarray(pred["y"])[obs] - pose[obs, 1])
         d = np.asarray(pred["psi"])[obs] - pose[obs, 2]
         dpsi = np.degrees(np.abs(np.arctan2(np.sin(d), np.cos(d))))
-        for name, v in (("dx_cm", dx), ("dy_cm", dy), ("dpsi_deg", dpsi)):
+        axis = np.minimum(dpsi, 180.0 - dpsi)  # the error of the heading's axis (front and back alike)
+        for name, v in (("dx_cm", dx), ("dy_cm", dy), ("dpsi_deg", dpsi), ("daxis_deg", axis)):
             out[name] = float(np.mean(v))
             out[name + "_std"] = float(np.std(v))
     return out

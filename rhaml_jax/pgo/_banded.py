@@ -1,14 +1,20 @@
-"""Block-tridiagonal solver by cyclic reduction, for graphs of small node bandwidth.
+"""Block-tridiagonal solvers, for graphs of small node bandwidth.
 
 If every edge joins free nodes whose variable indices differ by at most w, grouping the
 variables w at a time makes H block tridiagonal with (3w x 3w) blocks. The RHAML two-robot
-graph, ordered A_0, B_0, A_1, B_1, ..., has w = 2 and so 6 x 6 blocks. Odd-even cyclic
-reduction (`pcr_solve`) then takes ceil(log2 M) batched steps with an unrolled Gauss-Jordan
-solve per block instead of M sequential ones, and no LAPACK call per block (which costs
-microseconds each here). Block LDL^T (`thomas_solve`, M sequential steps of ~2.2 us) does
-less work and measured faster for M = 101 (0.44 against 1.05 ms with one XLA thread,
-experiments/profile_rhaml_pgo.py); the RHAML ladder solver uses it. A dense factorisation of
-the same 600 x 600 system costs ~100x more on this machine.
+graph, ordered A_0, B_0, A_1, B_1, ..., has w = 2 and so 6 x 6 blocks. Solvers of
+`band_solve` (SolverConfig.band_solver):
+
+- `twisted_solve` (default): block LDL^T from both ends towards the middle, the two chains in
+  one batched `lax.scan` of ~M/2 steps. On XLA's CPU backend a step costs its ~17 small kernels'
+  overhead (the 6 x 13 Gauss-Jordan of `_spd_solve`), not their arithmetic, so halving the
+  steps is what pays.
+- `thomas_solve`: the same factorisation in one direction, M steps.
+
+experiments/profile_rhaml_pgo.py times both at M = 101 (BENCHMARKS.md). Measured slower and
+dropped: parallel cyclic reduction (log2 M batched levels, 2.4x `thomas_solve`) and LAPACK's
+banded Cholesky through a host callback (~3x `twisted_solve`: the callback alone costs more than
+the scan). A dense factorisation of the same 606 x 606 system costs ~100x more here.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import numpy as np
 
 from ._normal_equations import BlockStructure
 
-__all__ = ["BandLayout", "band_layout", "band_solve", "lapack_solve", "node_bandwidth", "solve_banded", "pcr_solve", "thomas_solve", "twisted_solve"]
+__all__ = ["BandLayout", "band_layout", "band_solve", "node_bandwidth", "solve_banded", "thomas_solve", "twisted_solve"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["diag_pos", "diag_pos_t", "sub_pos", "pad_diag"],
@@ -95,36 +101,6 @@ def _spd_solve(A, B):
     return jnp.where(ok[:, None, None], X[:, :, b:], jnp.nan)
 
 
-def pcr_solve(D, Lo, Up, r):
-    """Solves the SPD block tridiagonal system Lo[i] x[i-1] + D[i] x[i] + Up[i] x[i+1] = r[i]
-    (D, Lo, Up (M, b, b), r (M, b, k); Lo[0] = Up[M-1] = 0) by parallel cyclic reduction.
-
-    Level l eliminates from every equation i its neighbours i -/+ s, s = 2^l, with equations
-    i -/+ s, which leaves couplings at distance 2s; after ceil(log2 M) levels every block is
-    decoupled. Each level's reduced blocks are Schur complements of the SPD matrix, so no
-    pivoting is needed. All M equations are processed at once at every level (fixed shapes:
-    one `fori_loop` body, no per-level compilation), O(M b^3 log M) work in a handful of
-    batched ops per level instead of M sequential steps. A non-positive pivot (H not positive
-    definite) makes the result NaN, which the solver treats as a failed step."""
-    M, b = D.shape[0], D.shape[-1]
-    levels = max(0, (M - 1).bit_length())
-    idx = jnp.arange(M)
-
-    def level(l, carry):
-        D, Lo, Up, r = carry
-        s = jnp.left_shift(1, l)
-        X = _spd_solve(D, jnp.concatenate([Lo, Up, r], axis=-1))  # D^-1 [Lo Up r]
-        Xm = X[jnp.maximum(idx - s, 0)]  # rows out of range meet Lo = 0 / Up = 0
-        Xp = X[jnp.minimum(idx + s, M - 1)]
-        Ym = Lo @ Xm
-        Yp = Up @ Xp
-        D = D - Ym[..., b : 2 * b] - Yp[..., :b]
-        return D, -Ym[..., :b], -Yp[..., b : 2 * b], r - Ym[..., 2 * b :] - Yp[..., 2 * b :]
-
-    D, Lo, Up, r = jax.lax.fori_loop(0, levels, level, (D, Lo, Up, r))
-    return _spd_solve(D, r)
-
-
 def _eliminate(D, Lo, Up, r):
     """Forward block elimination down a chain: D, Lo, Up (h, b, b) with Lo[i] = A[i, i-1]
     (Lo[0] ignored), Up[i] = A[i, i+1], r (h, b, k) -> W = S_i^-1 Up[i], y = S_i^-1 (r_i -
@@ -159,10 +135,11 @@ def _up(Lo):
 
 
 def thomas_solve(D, Lo, r):
-    """Solves the same SPD block tridiagonal system (Up[i] = Lo[i+1]^T) by block LDL^T: one
-    forward and one backward `lax.scan` over the M groups. Fewer operations than
-    `pcr_solve` (which is log2 M times the work) but M sequential steps of ~2.2 us of XLA
-    kernel overhead each; `twisted_solve` halves their number."""
+    """Solves the SPD block tridiagonal system Lo[i] x[i-1] + D[i] x[i] + Lo[i+1]^T x[i+1] = r[i]
+    (D, Lo (M, b, b), Lo[0] ignored; r (M, b, k)) by block LDL^T: one forward and one backward
+    `lax.scan` over the M groups, M sequential steps of ~2.2 us of XLA kernel overhead each
+    (`twisted_solve` halves their number). A non-positive pivot (the matrix not positive
+    definite) makes the result NaN, which the solver treats as a failed step."""
     return _substitute(*_eliminate(D, Lo, _up(Lo), r), jnp.zeros_like(r[0]))
 
 
@@ -192,59 +169,13 @@ def twisted_solve(D, Lo, r):
     return jnp.concatenate([x[0], x_m[None], x[1, pad:][::-1]])
 
 
-def _band_storage(D, Lo):
-    """LAPACK's lower band storage of the SPD block-tridiagonal matrix (NumPy, host side):
-    D, Lo (M, b, b) -> (2b, M b) with ab[k, j] = A[j + k, j], half-bandwidth 2b - 1."""
-    M, b = D.shape[0], D.shape[-1]
-    X = np.concatenate([D, np.concatenate([Lo[1:], np.zeros_like(Lo[:1])])], axis=1)  # (M, 2b, b): A[bi + m, bi + c]
-    k, c = np.meshgrid(np.arange(2 * b), np.arange(b), indexing="ij")  # (2b, b)
-    ab = np.where(k + c < 2 * b, X[:, np.minimum(k + c, 2 * b - 1), c], 0.0)  # (M, 2b, b); past the matrix: 0
-    return np.ascontiguousarray(np.moveaxis(ab, 0, 1).reshape(2 * b, M * b))
-
-
-def _host_pbsv(D, Lo, r, wide: bool):
-    from scipy.linalg import lapack
-
-    if wide:  # float64 travels as uint32 pairs (see `lapack_solve`)
-        D, Lo, r = (np.ascontiguousarray(a).view(np.float64)[..., 0] for a in (D, Lo, r))
-    M, b, k = r.shape
-    pbsv = lapack.dpbsv if wide else lapack.spbsv
-    _, x, info = pbsv(_band_storage(D, Lo), r.reshape(M * b, k), lower=1)
-    if info != 0:  # not positive definite (or a bad argument): a non-finite step, the solver damps
-        x = np.full((M * b, k), np.nan, r.dtype)
-    x = x.reshape(M, b, k)
-    if wide:
-        return np.ascontiguousarray(x, np.float64).view(np.uint32).reshape(*x.shape, 2)
-    return np.asarray(x, np.float32)
-
-
-def lapack_solve(D, Lo, r):
-    """Solves the same SPD block tridiagonal system as `thomas_solve` with LAPACK's banded
-    Cholesky (?pbsv) on the host, through one `jax.pure_callback` per solve: no per-group
-    kernel overhead, but the callback's own (see BENCHMARKS.md for which wins where); on an
-    accelerator it also copies the blocks to the host and back. Not differentiable (the
-    solver's while loop is not either)."""
-    # As in `_linear.solve_sparse`: XLA runs the callback where a caller's `jax.enable_x64`
-    # is not active and JAX would cast float64 to float32, so float64 crosses as uint32 pairs.
-    wide = r.dtype == jnp.float64
-    args = (D, Lo, r)
-    out = jax.ShapeDtypeStruct(r.shape, r.dtype)
-    if wide:
-        args = tuple(jax.lax.bitcast_convert_type(a, jnp.uint32) for a in args)
-        out = jax.ShapeDtypeStruct((*r.shape, 2), jnp.uint32)
-    x = jax.pure_callback(functools.partial(_host_pbsv, wide=wide), out, *args, vmap_method="sequential")
-    return jax.lax.bitcast_convert_type(x, jnp.float64) if wide else x
-
-
 def band_solve(D, Lo, r, how: str):
-    """The SPD block-tridiagonal solve by `how` = "thomas" or "lapack" (SolverConfig.band_solver)."""
-    if how == "lapack":
-        return lapack_solve(D, Lo, r)
+    """The SPD block-tridiagonal solve by `how` = "twisted" or "thomas" (SolverConfig.band_solver)."""
     if how == "thomas":
         return thomas_solve(D, Lo, r)
     if how == "twisted":
         return twisted_solve(D, Lo, r)
-    raise ValueError(f"band_solver must be 'twisted', 'thomas' or 'lapack', got {how!r}")
+    raise ValueError(f"band_solver must be 'twisted' or 'thomas', got {how!r}")
 
 
 def solve_banded(blocks: jax.Array, g: jax.Array, damp: jax.Array, lay: BandLayout, how: str = "thomas") -> jax.Array:

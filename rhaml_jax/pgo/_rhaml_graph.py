@@ -250,8 +250,14 @@ def rhaml_pgo(rv: Rendezvous, config: RhamlPGOConfig = RhamlPGOConfig()) -> Rham
     return RhamlPGOResult(pr[:, 0], pr[:, 1], a0b0, F, jnp.sum(valid).astype(jnp.int32), keep, c0, c1, it, conv)
 
 
-rhaml_pgo_jit = jax.jit(rhaml_pgo, static_argnames="config")
-"""`rhaml_pgo` jit-compiled: one executable per input shape and config, shared by all callers."""
+# A RHAML-size graph is thousands of kernels of a few hundred numbers each: handing them to
+# Eigen's thread pool costs more than it brings (K = 100: 2.0 against 2.5 ms on this 2-core
+# machine, BENCHMARKS.md). Other backends ignore the option.
+SMALL_GRAPH_COMPILER_OPTIONS = {"xla_cpu_multi_thread_eigen": False}
+
+rhaml_pgo_jit = jax.jit(rhaml_pgo, static_argnames="config", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
+"""`rhaml_pgo` jit-compiled (single-threaded XLA kernels on the CPU: faster at this size): one
+executable per input shape and config, shared by all callers."""
 
 
 def _check_rendezvous(rv: Rendezvous) -> None:

@@ -48,9 +48,9 @@ class SolverConfig:
         graphs), else "dense" (Cholesky in XLA) up to `dense_max_nodes` nodes and "sparse"
         (block-sparse normal equations factored by QDLDL on the host through a callback, AMD
         ordering and symbolic analysis once per graph) above.
-    band_solver: how the "banded" path solves its block-tridiagonal system: "thomas" (block
-        LDL^T as an XLA scan: pure, any device) or "lapack" (LAPACK's banded Cholesky on the
-        host through one callback per solve: on a CPU several times faster, see BENCHMARKS.md).
+    band_solver: how the "banded" path solves its block-tridiagonal system by block LDL^T in
+        XLA: "twisted" (from both ends at once, half the sequential steps) or "thomas" (one
+        direction); see `_banded`.
     robust: "none", "huber" or "cauchy" on the Mahalanobis norm s = sqrt(r^T Lambda r),
         with threshold `robust_delta` (in units of standard deviations), solved by IRLS.
     Stops when the cost decrease is below `relative_tolerance` * cost or below
@@ -69,7 +69,7 @@ class SolverConfig:
     linear_solver: Literal["auto", "dense", "banded", "sparse"] = "auto"
     dense_max_nodes: int = 100
     banded_max_width: int = 4
-    band_solver: Literal["twisted", "thomas", "lapack"] = "twisted"
+    band_solver: Literal["twisted", "thomas"] = "twisted"
     robust: RobustKernel = "none"
     robust_delta: float = 1.345
     initialization: Literal["given", "chordal"] = "given"
