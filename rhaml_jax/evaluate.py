@@ -2,13 +2,15 @@
 paper's metrics (DESIGN.md section 5).
 
   python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml --json OUT [--amlnet CKPT]
+      [--zoom CKPT | --no-zoom]
 
 Prints one JSON line: mean and std of |dx|, |dy| (cm), |dpsi| (deg) and the ATE (eq. 12) over
 the frames with the robot in view, frames per second, and the detection counts over all frames
 (threshold 0.5 on o); `--json` also writes the per-frame estimates. Every image goes through
 `rhaml_jax.data.network_image` (the network's camera) first, so data sets of other tools and
-other image sizes work. This build runs the `iml` module (AMLNet alone); `ir` (refinement) and
-`pgo` (pose-graph fusion) come with the pipeline.
+other image sizes work. This build runs the `iml` module: AMLNet, then (by default) its zoom-in
+stage on a crop of the full-resolution image around AMLNet's estimate (`rhaml_jax.amlnet.zoom`);
+`ir` (refinement) and `pgo` (pose-graph fusion) come with the pipeline.
 """
 
 from __future__ import annotations
@@ -42,32 +44,50 @@ class Args:
     """write metrics and per-frame estimates here"""
     amlnet: Path | None = None
     """AMLNet checkpoint folder (default: the shipped amlnet_cpu)"""
+    zoom: Path | None = None
+    """AMLNet's zoom-in stage checkpoint folder (default: the shipped zoom_cpu with the shipped AMLNet)"""
+    no_zoom: bool = False
+    """report AMLNet alone, without its zoom-in stage"""
     refiner: Path | None = None
     """refiner checkpoint folder (the ir module)"""
     batch: int = 32
     """images per network call"""
 
 
-def evaluate_iml(frames, net, params, stats, batch: int = 32) -> tuple[np.ndarray, np.ndarray, float]:
-    """AMLNet on BOP frames: (estimates (N, 3) x, y, psi; o probabilities (N,); seconds)."""
+def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """AMLNet on BOP frames, then its zoom-in stage if `zoom` = (net, params, batch_stats) is
+    given: (estimates (N, 3) x, y, psi; o probabilities (N,); seconds per frame)."""
     import jax
 
     from rhaml_jax.amlnet import decode
+    from rhaml_jax.amlnet.zoom import apply_correction, zoom_crop
     from rhaml_jax.data import load_rgb, network_image
 
     h, w = net.cfg.input_hw
     predict = jax.jit(lambda p, s, x: decode(net.apply(p, s, x), net.cfg.angle_head))
+    if zoom is not None:
+        znet, zparams, zstats = zoom
+        zpredict = jax.jit(lambda p, s, x: decode(znet.apply(p, s, x), znet.cfg.angle_head))
     est, prob = [], []
     seconds = 0.0
+
+    def pad(x):  # one shape for every call
+        return np.concatenate([x, np.zeros((batch - len(x),) + x.shape[1:], x.dtype)])
+
     for i in range(0, len(frames), batch):
         chunk = frames[i : i + batch]
-        imgs = np.stack([network_image(load_rgb(f.rgb), f.K, (h, w)) for f in chunk]).astype(np.float32) / 255.0
-        imgs = np.concatenate([imgs, np.zeros((batch - len(chunk),) + imgs.shape[1:], np.float32)])  # one shape
+        full = [load_rgb(f.rgb) for f in chunk]
         t = time.perf_counter()
-        out = jax.device_get(predict(params, stats, imgs))
+        imgs = np.stack([network_image(im, f.K, (h, w)) for im, f in zip(full, chunk)]).astype(np.float32) / 255.0
+        out = jax.device_get(predict(params, stats, pad(imgs)))
+        e = np.stack([out["x"], out["y"], out["psi"]], 1)[: len(chunk)]
+        if zoom is not None:
+            crops = np.stack([zoom_crop(im, f.K, g[:2], znet.cfg) for im, f, g in zip(full, chunk, e)])
+            z = jax.device_get(zpredict(zparams, zstats, pad(crops.astype(np.float32) / 255.0)))
+            e = apply_correction(e[:, :2], np.stack([z["x"], z["y"], z["psi"]], 1)[: len(chunk)])
         if i:  # the first call compiles
             seconds += time.perf_counter() - t
-        est.append(np.stack([out["x"], out["y"], out["psi"]], 1)[: len(chunk)])
+        est.append(e)
         prob.append(out["o"][: len(chunk)])
     n_timed = max(len(frames) - min(batch, len(frames)), 0)
     return np.concatenate(est), np.concatenate(prob), (seconds / n_timed if n_timed else float("nan"))
@@ -76,6 +96,7 @@ def evaluate_iml(frames, net, params, stats, batch: int = 32) -> tuple[np.ndarra
 def run(args: Args) -> dict:
     from rhaml_jax import metrics
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
+    from rhaml_jax.amlnet.checkpoint import SHIPPED_DIR
     from rhaml_jax.data import read_bop
 
     modules = [m for m in args.modules.split(",") if m]
@@ -88,7 +109,13 @@ def run(args: Args) -> dict:
         raise RhamlError(f"--batch {args.batch}: must be positive")
     frames = read_bop(args.data, args.split, args.scene)
     net, params, stats = load_model(args.amlnet or shipped_checkpoint("amlnet_cpu"))
-    est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch)
+    zoom_dir = args.zoom
+    if zoom_dir is None and args.amlnet is None and (SHIPPED_DIR / "zoom_cpu" / "checkpoints").is_dir():
+        zoom_dir = shipped_checkpoint("zoom_cpu")  # the shipped AMLNet's own zoom stage
+    zoom = None if args.no_zoom or zoom_dir is None else load_model(zoom_dir)
+    if zoom is not None and zoom[0].cfg.task != "zoom":
+        raise RhamlError(f"--zoom {zoom_dir}: holds a {zoom[0].cfg.name} network, not a zoom-in stage")
+    est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch, zoom)
     observed = np.array([f.observed for f in frames])
     gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames])
     det = prob >= 0.5
@@ -103,6 +130,7 @@ def run(args: Args) -> dict:
                       "fn": int((~det & observed).sum()), "tn": int((~det & ~observed).sum())},
         "detection_accuracy": float((det == observed).mean()),
         "frames": len(frames), "observed_frames": int(observed.sum()), "modules": modules,
+        "zoom": zoom is not None,
     }
     per_frame = [{"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
                   "est": [float(v) for v in e] if d else None, "gt": [float(v) for v in g] if f.observed else None}

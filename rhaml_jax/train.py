@@ -2,6 +2,7 @@
 
   python -m rhaml_jax.train --stage amlnet --config cpu --out runs/amlnet_cpu [--robot R]
       [--data DIR] [--steps N] [--batch B] [--resume]
+  python -m rhaml_jax.train --stage zoom --config zoom_cpu --data DIR --out runs/zoom_cpu
 
 Without --data the training images are generated on the fly by `rhaml_jax.data`; with --data
 they are read from a BOP folder (also through `rhaml_jax.data`).  The run folder receives
@@ -21,13 +22,13 @@ import tyro
 from rhaml_jax.amlnet.trainer import TrainConfig
 from rhaml_jax.errors import RhamlError, run_cli
 
-__all__ = ["Args", "main", "amlnet_sources"]
+__all__ = ["Args", "main", "amlnet_sources", "zoom_sources"]
 
 
 @dataclass(frozen=True)
 class Args:
-    stage: Literal["amlnet", "refiner"]
-    """which network: the AMLNet initial localiser or the iterative refiner"""
+    stage: Literal["amlnet", "zoom", "refiner"]
+    """which network: the AMLNet initial localiser, its zoom-in stage (needs --data) or the iterative refiner"""
     config: str
     """model config name (e.g. paper, cpu, cpu_k0, frontnet; see rhaml_jax.amlnet.config)"""
     out: Path
@@ -61,6 +62,24 @@ def amlnet_sources(args: Args, cfg):
             f"{'BOP ' + str(args.data) if args.data else 'generated'} ({args.robot})")
 
 
+def zoom_sources(args: Args, cfg):
+    """(train source, validation source, label) for the zoom stage: crops of the BOP set's
+    observed frames around jittered estimates (`rhaml_jax.amlnet.zoom`)."""
+    if args.data is None or args.toy_data:
+        raise RhamlError("--stage zoom: needs --data (a BOP training set with a val split); it has no generated or toy data")
+    if getattr(cfg, "task", None) != "zoom":
+        raise RhamlError(f"--stage zoom: --config {args.config} is not a zoom network (e.g. zoom_cpu)")
+    from rhaml_jax.amlnet.zoom import ZoomSource
+    from rhaml_jax.data import AugmentConfig, make_batch_fn
+
+    tc = args.train
+    train = ZoomSource(args.data, "train", cfg, seed=tc.seed)
+    val = ZoomSource(args.data, "val", cfg, seed=tc.seed + 10_000, draws=1)
+    # two loader threads: a cold example is a PNG decode (~20 ms), the network step is cheap
+    return (make_batch_fn(train, tc.batch, tc.seed, AugmentConfig(), workers=2), make_batch_fn(val, tc.batch, tc.seed + 10_000, None),
+            f"zoom crops of BOP {args.data}")
+
+
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     if args.stage == "refiner":
@@ -72,12 +91,15 @@ def main(argv: list[str] | None = None) -> dict:
     tc = args.train
     if tc.steps < 1 or tc.batch < 1:
         raise RhamlError(f"--steps {tc.steps} / --batch {tc.batch}: must be positive")
-    source, val_source, label = amlnet_sources(args, cfg)
+    if args.stage == "amlnet" and getattr(cfg, "task", None) == "zoom":
+        raise RhamlError(f"--stage amlnet: --config {args.config} is a zoom network; use --stage zoom")
+    source, val_source, label = (zoom_sources if args.stage == "zoom" else amlnet_sources)(args, cfg)
     if args.toy_data:
         print("warning: --toy-data: training on coloured rectangles (a trainer test), not on robot images")
     res = train_amlnet(cfg, tc, args.out, source, val_source, resume=args.resume, data_label=label, progress=args.progress)
     print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()
-                                                              if k in ("dx_cm", "dy_cm", "dpsi_deg", "detection_acc")))
+                                                              if k in ("dx_cm", "dy_cm", "range_pct", "bearing_deg",
+                                                                       "dpsi_deg", "detection_acc")))
     return res
 
 

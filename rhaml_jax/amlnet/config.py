@@ -13,8 +13,10 @@ Named configs
 - ``paper_dw``: the paper network with depthwise ACN kernels (8.38 GMACs).
 - ``cpu``: the network that trains on the project's 2-core CPU machine in about two hours
   (see `CPU_RATIONALE`), plus its Table II ablation ``cpu_k0``, ``cpu_k3``, ``cpu_k35``.
+- ``zoom_cpu``: the zoom-in stage that goes with ``cpu`` (`rhaml_jax.amlnet.zoom`): 64 x 64
+  crops around AMLNet's estimate, its range, bearing and heading corrections out.
 - ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
-- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
+- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_zoom``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
   compiler needs ~0.1 s per fused kernel, so tests use the smallest networks that cover the code).
 """
 
@@ -53,6 +55,10 @@ class AMLNetConfig:
     angle_head: "psi" outputs (o, x, y, psi) as in the paper; "cossin" outputs
       (o, x, y, cos psi, sin psi) and decodes psi with atan2; "axis" adds (cos 2psi, sin 2psi),
       which survive a front/back look-alike robot (`loss` says why; documented options).
+    task: "localize" (AMLNet: the whole image in, the pose out) or "zoom" (the zoom-in stage,
+      `rhaml_jax.amlnet.zoom`: a crop around a first estimate in, its correction out). The crop
+      is `zoom_factor` times the robot's projected length `zoom_length_m` wide, centred on its
+      point `zoom_centre_z_m` above the ground.
     pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
       feature grid to the neck, so the image position of the robot (its bearing) reaches the
       head directly instead of through zero-padding artefacts; "attend" adds to the flattened
@@ -75,6 +81,10 @@ class AMLNetConfig:
     pool: Literal["gap", "flatten", "attend"] = "gap"
     layer_scale_init: float = 1e-6
     drop_path: float = 0.0
+    task: Literal["localize", "zoom"] = "localize"
+    zoom_length_m: float = 0.455
+    zoom_centre_z_m: float = 0.12
+    zoom_factor: float = 2.0
     kind: Literal["amlnet"] = "amlnet"
 
     def __post_init__(self):
@@ -93,6 +103,10 @@ class AMLNetConfig:
             raise RhamlError(f"config {self.name}: input_hw {self.input_hw} must be divisible by {stride}")
         if self.angle_head not in ("psi", "cossin", "axis"):
             raise RhamlError(f"config {self.name}: angle_head must be 'psi', 'cossin' or 'axis', got {self.angle_head!r}")
+        if self.task not in ("localize", "zoom"):
+            raise RhamlError(f"config {self.name}: task must be 'localize' or 'zoom', got {self.task!r}")
+        if self.task == "zoom" and (h != w or self.zoom_length_m <= 0 or self.zoom_factor <= 0):
+            raise RhamlError(f"config {self.name}: a zoom network needs a square input and positive zoom_length_m, zoom_factor")
         if self.pool not in ("gap", "flatten", "attend"):
             raise RhamlError(f"config {self.name}: pool must be 'gap', 'flatten' or 'attend', got {self.pool!r}")
 
@@ -130,17 +144,21 @@ its 4:3 aspect; divisible by the network's stride 32, final grid 4 x 5); widths 
 256) = 1/3 of the paper's; depths (2, 2, 6, 2); the paper's dense ACN with K = {3, 5, 7}, so
 the Table II question can still be asked at this size (cpu_k0, cpu_k3, cpu_k35); neck
 256 -> 256 -> 256; layer scale initialised at 0.1 instead of 1e-6 (a short run cannot afford
-residual branches that start switched off).  Two documented departures from the paper's head,
-both for a two-hour budget: the final 4 x 5 x 256 feature grid is flattened into the neck
-instead of averaged (pool="flatten"), so the robot's bearing, i.e. its image column, reaches
-the head directly; and the heading is regressed as (cos psi, sin psi) (angle_head="cossin"),
-since a single psi output must jump somewhere on the circle of headings.  In a side-by-side
-start of both heads (BENCHMARKS.md) the paper's psi head had not left the mean predictor after
-270 steps while the cossin head had.  3.34 M parameters, 0.140 GMACs (63x fewer than
-`paper`); about 14 images/s per run with two runs sharing the 2 cores, so 4000 steps of 32
-(128 k images, seven passes over the 18 k training images) fit in about two hours alone.
-The robot at the far end of the scenarios (7 m) still spans about 6 x 4 pixels at this
-input size."""
+residual branches that start switched off).  3.4 M parameters, 0.140 GMACs (63x fewer than
+`paper`); 4000 steps of 32 train in about two hours here.  Documented departures from the
+paper's head, each for a reason measured in BENCHMARKS.md:
+- pool: the final 4 x 5 x 256 grid reaches the neck whole (not averaged), so the robot's
+  bearing, i.e. its image column, reaches the head directly ("flatten"); "attend" adds an
+  attention-pooled feature vector shared by all image positions;
+- heading: (cos psi, sin psi) instead of psi (the paper's psi head had not left the mean
+  predictor after 270 steps where this one had); "axis" adds (cos 2psi, sin 2psi), whose
+  optimum survives the Pioneer's front/back look-alike ends (`loss`).
+At this input size the robot is 5-40 pixels wide, and the whole-image network learns where
+it is (bearing error ~2 deg, range error ~8 %) but not which way it faces: with every head
+above, the heading outputs stayed at the mean predictor.  So `cpu` comes with a zoom-in
+stage, `zoom_cpu` (`rhaml_jax.amlnet.zoom`): a 1.3 M-parameter network of the same blocks on a
+64 x 64 crop of the full-resolution image around the estimate, twice the robot's projected
+length wide, which regresses the range, bearing and heading corrections."""
 
 
 def _amlnet(name: str, **kw) -> AMLNetConfig:
@@ -170,11 +188,14 @@ CONFIGS: dict[str, ModelConfig] = {
     "cpu_k3": _amlnet("cpu_k3", acn_kernels=(3,), **_CPU),
     "cpu_k35": _amlnet("cpu_k35", acn_kernels=(3, 5), **_CPU),
     "cpu_psi": _amlnet("cpu_psi", **{**_CPU, "angle_head": "psi"}),
+    "zoom_cpu": _amlnet("zoom_cpu", task="zoom", input_hw=(64, 64), depths=(1, 1, 3, 1), dims=(32, 64, 128, 256),
+                        mlp_ratios=(4, 4, 4, 3), neck=(256,), pool="flatten", angle_head="axis", layer_scale_init=0.1),
     "frontnet": FrontNetConfig("frontnet"),
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),
     "tiny_k0": _amlnet("tiny_k0", acn_kernels=(), **_TINY),
     "micro": _amlnet("micro", input_hw=(16, 16), depths=(1, 1), dims=(16, 16), mlp_ratios=(2, 2), neck=(8,), layer_scale_init=0.1),
+    "tiny_zoom": _amlnet("tiny_zoom", task="zoom", angle_head="axis", pool="flatten", **_TINY),
     "tiny_frontnet": FrontNetConfig("tiny_frontnet", input_hw=(32, 32), stem_channels=8, channels=(8, 8, 16)),
 }
 

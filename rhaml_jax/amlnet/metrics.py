@@ -1,6 +1,8 @@
 """Validation metrics in the paper's terms: abs dx, dy (cm) and abs dpsi (deg, wrapped) over
 the frames with a robot in view, and detection accuracy (o > 0.5) over all frames; also
-daxis, the heading error modulo 180 deg, which tells a front/back flip from a wrong axis."""
+daxis, the heading error modulo 180 deg, which tells a front/back flip from a wrong axis.
+For the zoom stage (task "zoom", whose "x, y" are log range ratio and bearing correction) the
+first two are named range_pct (100 |d log r|, about the range error in %) and bearing_deg."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import numpy as np
 __all__ = ["pose_metrics"]
 
 
-def pose_metrics(pred: dict, observed: np.ndarray, pose: np.ndarray) -> dict:
+def pose_metrics(pred: dict, observed: np.ndarray, pose: np.ndarray, task: str = "localize") -> dict:
     """pred: decoded outputs (numpy arrays o, x, y, psi); observed (N,), pose (N, 3)."""
     obs = np.asarray(observed) > 0.5
     det = (np.asarray(pred["o"]) > 0.5) == obs
@@ -24,7 +26,11 @@ def pose_metrics(pred: dict, observed: np.ndarray, pose: np.ndarray) -> dict:
         d = np.asarray(pred["psi"])[obs] - pose[obs, 2]
         dpsi = np.degrees(np.abs(np.arctan2(np.sin(d), np.cos(d))))
         axis = np.minimum(dpsi, 180.0 - dpsi)  # the error of the heading's axis (front and back alike)
-        for name, v in (("dx_cm", dx), ("dy_cm", dy), ("dpsi_deg", dpsi), ("daxis_deg", axis)):
+        if task == "zoom":
+            names = (("range_pct", dx), ("bearing_deg", np.degrees(dy / 100)))
+        else:
+            names = (("dx_cm", dx), ("dy_cm", dy))
+        for name, v in names + (("dpsi_deg", dpsi), ("daxis_deg", axis)):
             out[name] = float(np.mean(v))
             out[name + "_std"] = float(np.std(v))
     return out

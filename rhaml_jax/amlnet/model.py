@@ -29,14 +29,20 @@ __all__ = ["AMLNet", "attention_pool", "normalize_images", "scale_head"]
 # step size are spent on bridging a 4.5 m offset or a factor 2 in scale.
 OUT_OFFSET = (0.0, 4.5, 0.0, 0.0, 0.0, 0.0, 0.0)
 OUT_SCALE = (1.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0)
+# The zoom stage's (log range ratio, bearing correction) have spreads of about 0.15 and
+# 0.05 rad (its training jitter, `zoom.ZoomJitter`), and no offset.
+ZOOM_OFFSET = (0.0,) * 7
+ZOOM_SCALE = (1.0, 0.15, 0.05, 1.0, 1.0, 1.0, 1.0)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
-def scale_head(raw):
-    """(B, 4|5|7) standardised head -> head in metres (OUT_OFFSET + OUT_SCALE * raw)."""
+def scale_head(raw, task: str = "localize"):
+    """(B, 4|5|7) standardised head -> head in its units (offset + scale * raw): metres for
+    AMLNet (OUT_*), the zoom stage's corrections for task "zoom" (ZOOM_*)."""
     n = raw.shape[-1]
-    return raw * jnp.asarray(OUT_SCALE[:n], raw.dtype) + jnp.asarray(OUT_OFFSET[:n], raw.dtype)
+    offset, scale = (ZOOM_OFFSET, ZOOM_SCALE) if task == "zoom" else (OUT_OFFSET, OUT_SCALE)
+    return raw * jnp.asarray(scale[:n], raw.dtype) + jnp.asarray(offset[:n], raw.dtype)
 
 
 def attention_pool(x, score):
@@ -112,4 +118,4 @@ class AMLNet(nnx.Module):
         h = self.features(images, train, key, impl)
         for fc in self.neck:
             h = jax.nn.gelu(fc(h), approximate=False)
-        return scale_head(self.head(h))
+        return scale_head(self.head(h), self.cfg.task)

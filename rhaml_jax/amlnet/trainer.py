@@ -118,9 +118,11 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
     for k, lab in (("loss_o", "L_o"), ("loss_p", "L_p"), ("loss_psi", "heading term")):
         axes[0].semilogy([r["step"] for r in tr if k in r], [r[k] for r in tr if k in r], label=lab, alpha=0.7)
     axes[0].set_title("training loss"); axes[0].set_xlabel("step"); axes[0].legend()
-    va = [r for r in rows if "val_dx_cm" in r]
-    for k, lab in (("val_dx_cm", "|dx| cm"), ("val_dy_cm", "|dy| cm"), ("val_dpsi_deg", "|dpsi| deg")):
-        axes[1].plot([r["step"] for r in va], [r[k] for r in va], "o-", label=lab)
+    va = [r for r in rows if "val_dpsi_deg" in r]
+    for k, lab in (("val_dx_cm", "|dx| cm"), ("val_dy_cm", "|dy| cm"), ("val_range_pct", "|d range| %"),
+                   ("val_bearing_deg", "|d bearing| deg"), ("val_dpsi_deg", "|dpsi| deg")):
+        if any(k in r for r in va):
+            axes[1].plot([r["step"] for r in va if k in r], [r[k] for r in va if k in r], "o-", label=lab)
     axes[1].set_title("validation pose error"); axes[1].set_xlabel("step"); axes[1].legend()
     vd = [r for r in rows if "val_detection_acc" in r]
     axes[2].plot([r["step"] for r in vd], [r["val_detection_acc"] for r in vd], "o-")
@@ -139,7 +141,7 @@ def validate(predict, params, stats, val_source, n_batches: int, cfg, batch: int
         preds.append({k: np.asarray(v) for k, v in decode(jnp.asarray(out), cfg.angle_head).items()})
         obs.append(np.asarray(b.observed)); poses.append(np.asarray(b.pose))
     pred = {k: np.concatenate([p[k] for p in preds]) for k in preds[0]}
-    return pose_metrics(pred, np.concatenate(obs), np.concatenate(poses))
+    return pose_metrics(pred, np.concatenate(obs), np.concatenate(poses), getattr(cfg, "task", "localize"))
 
 
 def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source: BatchSource,

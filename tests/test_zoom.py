@@ -1,0 +1,132 @@
+"""AMLNet's zoom-in stage: crop geometry against projected points, the correction round trip,
+deterministic training examples, and evaluate's composition of the two networks."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rhaml_jax.amlnet import build, decode, get_config, load_model
+from rhaml_jax.amlnet.checkpoint import Checkpoints
+from rhaml_jax.amlnet.config import config_to_dict
+from rhaml_jax.amlnet.zoom import ZoomSource, apply_correction, correction_targets, zoom_crop
+from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
+from rhaml_jax.data import load_rgb, network_image, read_bop
+from rhaml_jax.data._writer import write_training_set
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.evaluate import main
+
+CFG = get_config("zoom_cpu")
+
+
+@settings(max_examples=50, deadline=None)
+@given(x=st.floats(0.6, 9.0), y=st.floats(-4.0, 4.0), psi=st.floats(-3.14, 3.14),
+       gx=st.floats(0.6, 9.0), gy=st.floats(-4.0, 4.0))
+def test_correction_round_trip(x, y, psi, gx, gy):
+    t = correction_targets([x, y, psi], [gx, gy])
+    back = apply_correction([gx, gy], t)
+    np.testing.assert_allclose(back[:2], [x, y], atol=1e-9)
+    assert abs(np.sin(back[2] - psi)) < 1e-9 and np.cos(back[2] - psi) > 0
+
+
+def _blobs(K, points, W=640, H=480, sigma=2.0):
+    """An image with a Gaussian blob at the projection of each robot-frame point."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    img = np.zeros((H, W))
+    for x, y, z in points:
+        pu, pv = K[0, 2] - K[0, 0] * y / x, K[1, 2] + K[1, 1] * (NOMINAL_HEIGHT_M - z) / x
+        img += np.exp(-((u - pu) ** 2 + (v - pv) ** 2) / (2 * sigma**2))
+    return np.repeat((255 * img / img.max())[..., None], 3, -1).astype(np.uint8)
+
+
+def _centroids(crop):
+    """Centroids (u, v) of the left and right halves' brightness."""
+    g = crop[..., 0].astype(np.float64)
+    g = np.where(g > 0.2 * g.max(), g, 0.0)
+    out = []
+    for half in (slice(0, g.shape[1] // 2), slice(g.shape[1] // 2, None)):
+        h = np.zeros_like(g)
+        h[:, half] = g[:, half]
+        v, u = np.mgrid[0 : g.shape[0], 0 : g.shape[1]]
+        out.append(((h * u).sum() / h.sum(), (h * v).sum() / h.sum()))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("x,y", [(1.5, 0.3), (4.5, -1.0), (7.0, 1.2)])
+def test_crop_centres_and_scales_the_estimate(x, y):
+    """Two points a quarter robot length either side of the estimate's centre point land
+    symmetric about the crop centre, S / (2 zoom_factor) apart (near: area-shrunk crop; far:
+    enlarged); holds for a camera with fx != fy too."""
+    S = CFG.input_hw[0]
+    half = 0.25 * CFG.zoom_length_m
+    z = CFG.zoom_centre_z_m
+    for cam in (DEFAULT_CAMERA, DEFAULT_CAMERA.resized(320, 256)):
+        K = cam.K
+        img = _blobs(K, [(x, y + half, z), (x, y - half, z)], cam.width, cam.height, sigma=1.5 * cam.width / 640)
+        c = _centroids(zoom_crop(img, K, (x, y), CFG))
+        np.testing.assert_allclose(c.mean(0), [(S - 1) / 2, (S - 1) / 2], atol=0.35)
+        np.testing.assert_allclose(c[1, 0] - c[0, 0], S / (2 * CFG.zoom_factor), rtol=0.03)
+
+
+def test_zoom_source_is_a_pure_function_of_seed_and_index(tmp_path):
+    write_training_set(tmp_path / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=4, num=6, negatives=1,
+                       workers=1)
+    a = ZoomSource(tmp_path / "set", "train", CFG, seed=1)
+    b = ZoomSource(tmp_path / "set", "train", CFG, seed=1)
+    n = len(a.frames)
+    assert a.size == 8 * n and all(f.observed for f in a.frames)
+    for i in (0, 3, n + 1):
+        (ca, oa, ta), (cb, _, tb) = a.example(i), b.example(i)
+        np.testing.assert_array_equal(ca, cb)
+        np.testing.assert_array_equal(ta, tb)
+        assert ca.shape == (64, 64, 3) and ca.dtype == np.uint8 and oa == 1.0
+        f = a.frames[i % n]
+        np.testing.assert_allclose(apply_correction(a.guess(i), ta)[:2], f.xypsi[:2], atol=1e-5)
+    assert not np.allclose(a.guess(0), a.guess(n))  # another draw for the same image
+    t = np.stack([a.example(i)[2] for i in range(a.size)])
+    assert np.abs(t[:, 0]).max() <= 3 * 0.12 + 1e-6 and np.abs(t[:, 1]).max() <= np.deg2rad(7.5) + 1e-6
+    with pytest.raises(RhamlError, match="task='zoom'"):
+        ZoomSource(tmp_path / "set", "train", get_config("micro"))
+
+
+def test_evaluate_composes_amlnet_and_zoom(tmp_path):
+    write_training_set(tmp_path / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=6, negatives=1,
+                       workers=1)
+    for name, cfg in (("amlnet", get_config("micro")), ("zoom", get_config("tiny_zoom"))):
+        net = build(cfg, jax.random.key(5))
+        ck = Checkpoints(tmp_path / name, keep=1)
+        ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
+                {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
+        ck.close()
+    out = tmp_path / "eval.json"
+    main(["--data", str(tmp_path / "set"), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
+          "--json", str(out), "--batch", "4"])
+    res = json.loads(out.read_text())
+    assert res["metrics"]["zoom"] is True
+    frames = read_bop(tmp_path / "set")
+    (a, ap, as_), (z, zp, zs) = load_model(tmp_path / "amlnet"), load_model(tmp_path / "zoom")
+    full = [load_rgb(f.rgb) for f in frames]
+    imgs = np.stack([network_image(im, f.K, a.cfg.input_hw) for im, f in zip(full, frames)]).astype(np.float32) / 255
+    d = decode(a.apply(ap, as_, imgs), a.cfg.angle_head)
+    guess = np.stack([d["x"], d["y"]], 1)
+    crops = np.stack([zoom_crop(im, f.K, g, z.cfg) for im, f, g in zip(full, frames, guess)]).astype(np.float32) / 255
+    dz = decode(z.apply(zp, zs, crops), z.cfg.angle_head)
+    est = apply_correction(guess, np.stack([dz["x"], dz["y"], dz["psi"]], 1))
+    for row, e, o in zip(res["frames"], est, np.asarray(d["o"])):
+        if o >= 0.5:
+            np.testing.assert_allclose(row["est"], e, atol=1e-4)
+    with pytest.raises(RhamlError, match="not a zoom-in stage"):
+        main(["--data", str(tmp_path / "set"), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
+
+
+def test_config_rules():
+    with pytest.raises(RhamlError, match="square input"):
+        dataclasses.replace(CFG, input_hw=(64, 96))
+    with pytest.raises(RhamlError, match="task must be"):
+        dataclasses.replace(CFG, task="track")
