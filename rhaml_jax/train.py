@@ -76,8 +76,8 @@ def zoom_sources(args: Args, cfg):
     train = ZoomSource(args.data, "train", cfg, seed=tc.seed)
     val = ZoomSource(args.data, "val", cfg, seed=tc.seed + 10_000, draws=1)
     # two loader threads: a cold example is a PNG decode (~20 ms), the network step is cheap
-    return (make_batch_fn(train, tc.batch, tc.seed, AugmentConfig(), workers=2), make_batch_fn(val, tc.batch, tc.seed + 10_000, None),
-            f"zoom crops of BOP {args.data}")
+    return (make_batch_fn(train, tc.batch, tc.seed, AugmentConfig(), workers=2),
+            make_batch_fn(val, tc.batch, tc.seed + 10_000, None), f"zoom crops of BOP {args.data}")
 
 
 def main(argv: list[str] | None = None) -> dict:

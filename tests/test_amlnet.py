@@ -15,7 +15,7 @@ from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import (AMLNetConfig, config_from_dict, config_to_dict, get_config, num_outputs)
 from rhaml_jax.amlnet.count import count_macs, count_params
 from rhaml_jax.amlnet.functional import build, check_images
-from rhaml_jax.amlnet.model import attention_pool, scale_head
+from rhaml_jax.amlnet.model import scale_head
 from rhaml_jax.errors import RhamlError
 
 TOL = 1e-5
@@ -111,7 +111,7 @@ def test_block_matches_reference(name):
     assert float(jnp.abs(fe - x).max()) > 1e-2  # the branch is not negligible
 
 
-@pytest.mark.parametrize("variant", [{}, {"pool": "flatten", "angle_head": "cossin"}, {"pool": "attend", "angle_head": "axis"}])
+@pytest.mark.parametrize("variant", [{}, {"pool": "flatten", "angle_head": "cossin"}, {"pool": "gap", "angle_head": "axis"}])
 def test_network_matches_reference(variant):
     cfg = replace(get_config("micro"), **variant)
     net = build(cfg, jax.random.key(0))
@@ -129,24 +129,14 @@ def test_network_matches_reference(variant):
         np.testing.assert_allclose(u, v, atol=TOL, rtol=TOL)
 
 
-def test_attention_pool_reads_the_cell_it_points_at():
-    """A score peaked at one cell returns that cell's features and its centre in [-1, 1];
-    uniform scores return the global average and the grid's centre."""
-    x = jax.random.normal(jax.random.key(0), (2, 4, 5, 3))
-    score = jnp.zeros((2, 4, 5)).at[0, 3, 1].set(50.0).at[1, 0, 4].set(50.0)
-    out = attention_pool(x, score)
-    np.testing.assert_allclose(out[0], [*x[0, 3, 1], 1.0, -0.5], atol=1e-5)
-    np.testing.assert_allclose(out[1], [*x[1, 0, 4], -1.0, 1.0], atol=1e-5)
-    flat = attention_pool(x, jnp.zeros((2, 4, 5)))
-    np.testing.assert_allclose(flat[:, :3], x.mean(axis=(1, 2)), atol=1e-6)
-    np.testing.assert_allclose(flat[:, 3:], 0.0, atol=1e-6)
-
-
 def test_head_is_standardised():
     """The raw head is scaled to metres around the scenarios' middle depth: a zero head
     predicts (o logit 0, x 4.5 m, y 0, psi 0 | cos 0, sin 0)."""
     np.testing.assert_allclose(scale_head(jnp.zeros((1, 5))), [[0.0, 4.5, 0.0, 0.0, 0.0]])
     np.testing.assert_allclose(scale_head(jnp.ones((1, 4))), [[1.0, 6.5, 2.0, 1.0]])
+    # the zoom stage's corrections have no offset and their own spreads
+    np.testing.assert_allclose(scale_head(jnp.zeros((1, 7)), "zoom"), jnp.zeros((1, 7)))
+    np.testing.assert_allclose(scale_head(jnp.ones((1, 7)), "zoom"), [[1.0, 0.15, 0.05, 1.0, 1.0, 1.0, 1.0]])
 
 
 def test_paper_and_frontnet_counts():

@@ -61,10 +61,7 @@ class AMLNetConfig:
       point `zoom_centre_z_m` above the ground.
     pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
       feature grid to the neck, so the image position of the robot (its bearing) reaches the
-      head directly instead of through zero-padding artefacts; "attend" adds to the flattened
-      grid an attention-pooled feature vector and its soft-argmax cell position
-      (`model.attention_pool`), a path on which what is learned about the robot's look is
-      shared by all image positions (documented options).
+      head directly instead of through zero-padding artefacts (a documented option).
     """
 
     name: str
@@ -78,7 +75,7 @@ class AMLNetConfig:
     branch_ratio: int = 8
     neck: tuple[int, ...] = (1024, 1024)
     angle_head: AngleHead = "psi"
-    pool: Literal["gap", "flatten", "attend"] = "gap"
+    pool: Literal["gap", "flatten"] = "gap"
     layer_scale_init: float = 1e-6
     drop_path: float = 0.0
     task: Literal["localize", "zoom"] = "localize"
@@ -107,8 +104,8 @@ class AMLNetConfig:
             raise RhamlError(f"config {self.name}: task must be 'localize' or 'zoom', got {self.task!r}")
         if self.task == "zoom" and (h != w or self.zoom_length_m <= 0 or self.zoom_factor <= 0):
             raise RhamlError(f"config {self.name}: a zoom network needs a square input and positive zoom_length_m, zoom_factor")
-        if self.pool not in ("gap", "flatten", "attend"):
-            raise RhamlError(f"config {self.name}: pool must be 'gap', 'flatten' or 'attend', got {self.pool!r}")
+        if self.pool not in ("gap", "flatten"):
+            raise RhamlError(f"config {self.name}: pool must be 'gap' or 'flatten', got {self.pool!r}")
 
     @property
     def final_grid(self) -> tuple[int, int]:
@@ -147,15 +144,14 @@ the Table II question can still be asked at this size (cpu_k0, cpu_k3, cpu_k35);
 residual branches that start switched off).  3.4 M parameters, 0.140 GMACs (63x fewer than
 `paper`); 4000 steps of 32 train in about two hours here.  Documented departures from the
 paper's head, each for a reason measured in BENCHMARKS.md:
-- pool: the final 4 x 5 x 256 grid reaches the neck whole (not averaged), so the robot's
-  bearing, i.e. its image column, reaches the head directly ("flatten"); "attend" adds an
-  attention-pooled feature vector shared by all image positions;
-- heading: (cos psi, sin psi) instead of psi (the paper's psi head had not left the mean
-  predictor after 270 steps where this one had); "axis" adds (cos 2psi, sin 2psi), whose
-  optimum survives the Pioneer's front/back look-alike ends (`loss`).
+- pool="flatten": the final 4 x 5 x 256 grid reaches the neck whole (not averaged), so the
+  robot's bearing, i.e. its image column, reaches the head directly;
+- angle_head="cossin": (cos psi, sin psi) instead of psi (the paper's psi head had not left
+  the mean predictor after 270 steps where this one had).
 At this input size the robot is 5-40 pixels wide, and the whole-image network learns where
-it is (bearing error ~2 deg, range error ~8 %) but not which way it faces: with every head
-above, the heading outputs stayed at the mean predictor.  So `cpu` comes with a zoom-in
+it is (bearing error ~2 deg, range error ~8 %) but not which way it faces: its heading outputs
+stayed at the mean predictor (also with the "axis" head, which survives the Pioneer's
+front/back look-alike ends, in a run stopped at step 950).  So `cpu` comes with a zoom-in
 stage, `zoom_cpu` (`rhaml_jax.amlnet.zoom`): a 1.3 M-parameter network of the same blocks on a
 64 x 64 crop of the full-resolution image around the estimate, twice the robot's projected
 length wide, which regresses the range, bearing and heading corrections."""
@@ -171,8 +167,8 @@ _CPU = dict(
     dims=(32, 64, 128, 256),
     mlp_ratios=(4, 4, 4, 3),
     neck=(256, 256),
-    pool="attend",
-    angle_head="axis",
+    pool="flatten",
+    angle_head="cossin",
     layer_scale_init=0.1,
 )
 _TINY = dict(input_hw=(32, 32), depths=(1, 1, 1, 1), dims=(16, 16, 32, 32), mlp_ratios=(2, 2, 2, 2), neck=(16,), layer_scale_init=0.1)

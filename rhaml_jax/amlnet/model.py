@@ -1,7 +1,6 @@
 """AMLNet (DESIGN.md section 7): stem 4x4/4 + BN; stages of AIncep blocks with BN + conv
 2x2/2 downsampling before stages 2-4; global average pooling (or, with pool="flatten", the
-whole final grid, or with pool="attend", attention pooling plus the whole grid); FC neck
-(GELU); linear head, scaled to metres by `scale_head`.
+whole final grid); FC neck (GELU); linear head, scaled by `scale_head`.
 
 Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std).
 Output: raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
@@ -21,7 +20,7 @@ from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import AMLNetConfig, num_outputs
 from rhaml_jax.amlnet.norm import BatchNorm
 
-__all__ = ["AMLNet", "attention_pool", "normalize_images", "scale_head"]
+__all__ = ["AMLNet", "normalize_images", "scale_head"]
 
 # The head's outputs in metres are offset and scale * raw, with the scenarios' typical
 # depth (4.5 m, the middle of 1-8 m) and spread (about 2 m in x and y): the raw outputs are
@@ -43,19 +42,6 @@ def scale_head(raw, task: str = "localize"):
     n = raw.shape[-1]
     offset, scale = (ZOOM_OFFSET, ZOOM_SCALE) if task == "zoom" else (OUT_OFFSET, OUT_SCALE)
     return raw * jnp.asarray(scale[:n], raw.dtype) + jnp.asarray(offset[:n], raw.dtype)
-
-
-def attention_pool(x, score):
-    """Features and position of the cell the scores point at: x (B, h, w, C), score (B, h, w)
-    -> (B, C + 2) = (softmax(score)-weighted mean of x, weighted mean of the cell centres in
-    [-1, 1] as (row, column)).  The same weights read every cell, so what is learned about the
-    robot's look (its heading) is shared across image positions; the soft-argmax position is
-    its bearing and height in the image."""
-    B, h, w, C = x.shape
-    a = jax.nn.softmax(score.reshape(B, h * w), axis=-1)  # (B, h w)
-    rows, cols = jnp.meshgrid(jnp.linspace(-1.0, 1.0, h, dtype=x.dtype), jnp.linspace(-1.0, 1.0, w, dtype=x.dtype), indexing="ij")
-    centres = jnp.stack([rows.ravel(), cols.ravel()], axis=-1)  # (h w, 2)
-    return jnp.concatenate([jnp.einsum("bn,bnc->bc", a, x.reshape(B, h * w, C)), a @ centres], axis=-1)
 
 
 def normalize_images(images):
@@ -87,11 +73,7 @@ class AMLNet(nnx.Module):
         self.downs = nnx.List(downs)
         self.stages = nnx.List(stages)
         gh, gw = cfg.final_grid
-        c = cfg.dims[-1]
-        pooled = {"gap": c, "flatten": c * gh * gw, "attend": c + 2 + c * gh * gw}[cfg.pool]
-        if cfg.pool == "attend":
-            self.attend = Linear(c, 1, init=init)  # per-cell score of "the robot is here"
-        widths = (pooled,) + tuple(cfg.neck)
+        widths = (cfg.dims[-1] * (gh * gw if cfg.pool == "flatten" else 1),) + tuple(cfg.neck)
         self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
         self.head = Linear(widths[-1], num_outputs(cfg), init=init)
 
@@ -107,12 +89,9 @@ class AMLNet(nnx.Module):
                 k = None if key is None else jax.random.fold_in(key, n)
                 x = blk(x, train, k, impl)
                 n += 1
-        if self.cfg.pool == "gap":
-            return jnp.mean(x, axis=(1, 2))
-        flat = x.reshape(x.shape[0], -1)
         if self.cfg.pool == "flatten":
-            return flat
-        return jnp.concatenate([attention_pool(x, self.attend(x)[..., 0]), flat], axis=-1)
+            return x.reshape(x.shape[0], -1)
+        return jnp.mean(x, axis=(1, 2))
 
     def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
         h = self.features(images, train, key, impl)
