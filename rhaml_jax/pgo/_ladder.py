@@ -92,7 +92,7 @@ def ladder_iterate(p: Problem, a_observes, cfg: SolverConfig):
     def solve(system, lam):
         D, Lo, g = system
         diag = jnp.where(gauge, 0.0, jnp.diagonal(D, axis1=-2, axis2=-1))
-        damp = jnp.where(gauge, 0.0, damping(diag, lam))  # (K+1, 6)
+        damp = jnp.where(gauge, 0.0, damping(diag, lam, cfg.damping))  # (K+1, 6)
         D = D + damp[:, :, None] * jnp.eye(6, dtype=D.dtype)
         x = band_solve(D, Lo, -g[..., None], cfg.band_solver)[..., 0]
         x = jnp.where(gauge, 0.0, x)

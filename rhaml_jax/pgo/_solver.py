@@ -136,8 +136,12 @@ def lm_loop(T0, linearize_fn, solve_fn, cfg: SolverConfig):
     return s._replace(it=s.it - 1), s.cost0
 
 
-def damping(diag, lam):
-    """lam * diag(H), each entry floored at 1e-9 max diag(H) (so a zero pivot gets damped)."""
+def damping(diag, lam, mode: str = "identity"):
+    """What LM adds to diag(H): lam (mode "identity", GTSAM's default) or lam * diag(H) (mode
+    "diagonal", Marquardt's scaling), the latter floored at 1e-9 max diag(H) per entry (so a
+    zero pivot still gets damped)."""
+    if mode == "identity":
+        return jnp.full_like(diag, 1.0) * lam
     floor = 1e-9 * jnp.max(diag) + jnp.finfo(diag.dtype).tiny
     return lam * jnp.maximum(diag, floor)
 
@@ -153,7 +157,7 @@ def _iterate(p: Problem, cfg: SolverConfig, linear: str):
 
     def solve(system, lam):
         blocks, g = system
-        damp = damping(jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1), lam)  # (nv, 3)
+        damp = damping(jnp.diagonal(blocks[:nv], axis1=-2, axis2=-1), lam, cfg.damping)  # (nv, 3)
         if linear == "dense":
             delta = solve_dense(blocks, g, damp, p.struct)
         elif linear == "banded":

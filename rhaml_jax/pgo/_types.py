@@ -51,6 +51,9 @@ class SolverConfig:
     band_solver: how the "banded" path solves its block-tridiagonal system by block LDL^T in
         XLA: "twisted" (from both ends at once, half the sequential steps) or "thomas" (one
         direction); see `_banded`.
+    damping: what a damped step adds to H: lambda I ("identity", GTSAM's default) or
+        lambda diag(H) ("diagonal", Marquardt's). On MITb with LM the first takes GTSAM's 17
+        steps and the second 96 solves to the same local minimum (BENCHMARKS.md).
     robust: "none", "huber" or "cauchy" on the Mahalanobis norm s = sqrt(r^T Lambda r),
         with threshold `robust_delta` (in units of standard deviations), solved by IRLS.
     Stops when the cost decrease is below `relative_tolerance` * cost or below
@@ -64,6 +67,7 @@ class SolverConfig:
     relative_tolerance: float = 1e-9
     absolute_tolerance: float = 1e-12
     lambda_initial: float = 1e-5
+    damping: Literal["identity", "diagonal"] = "identity"
     lambda_factor: float = 10.0
     max_lambda: float = 1e10
     linear_solver: Literal["auto", "dense", "banded", "sparse"] = "auto"
