@@ -16,7 +16,7 @@ case "$what" in
     # Until the demo lands (pipeline issue), the main job is the most complete one there is:
     # render the paper's circle scenario (BOP images + TUM trajectories; a rerun skips what is
     # complete) and run the shipped AMLNet on it, printing the paper's metrics.
-    echo "rhaml_jax: the demo is not built yet; running the most complete job: AMLNet (IML) on the circle scenario in out/circle" >&2
+    echo "rhaml_jax: the demo is not built yet; running the most complete job: AMLNet and its zoom-in stage (IML) on the circle scenario in out/circle" >&2
     .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle
     exec .venv/bin/python -m rhaml_jax.evaluate --data out/circle --modules iml --json out/circle_iml.json "$@"
     ;;

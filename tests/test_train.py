@@ -156,6 +156,12 @@ def test_cli_errors(tmp_path):
     assert r.returncode == 2 and "unknown model config 'nope'" in r.stderr and "Traceback" not in r.stderr
     r = run("--stage", "refiner", "--config", "cpu", "--out", str(tmp_path / "x"))
     assert r.returncode == 2 and "refiner" in r.stderr
+    r = run("--stage", "zoom", "--config", "tiny_zoom", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "needs --data" in r.stderr and "Traceback" not in r.stderr
+    r = run("--stage", "zoom", "--config", "tiny", "--data", str(tmp_path), "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "not a zoom network" in r.stderr
+    r = run("--stage", "amlnet", "--config", "tiny_zoom", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "use --stage zoom" in r.stderr
     if importlib.util.find_spec("rhaml_jax.data") is None:
         r = run("--stage", "amlnet", "--config", "cpu", "--out", str(tmp_path / "x"))
         assert r.returncode == 2 and "rhaml_jax.data" in r.stderr

@@ -74,11 +74,17 @@ def test_crop_centres_and_scales_the_estimate(x, y):
         np.testing.assert_allclose(c[1, 0] - c[0, 0], S / (2 * CFG.zoom_factor), rtol=0.03)
 
 
-def test_zoom_source_is_a_pure_function_of_seed_and_index(tmp_path):
-    write_training_set(tmp_path / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=4, num=6, negatives=1,
-                       workers=1)
-    a = ZoomSource(tmp_path / "set", "train", CFG, seed=1)
-    b = ZoomSource(tmp_path / "set", "train", CFG, seed=1)
+@pytest.fixture(scope="module")
+def bop_set(tmp_path_factory):
+    """A small BOP set: 6 images with the robot (val: 1, test: 1, train: 4) and 1 without."""
+    root = tmp_path_factory.mktemp("zoom") / "set"
+    write_training_set(root, "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=6, negatives=1, workers=1)
+    return root
+
+
+def test_zoom_source_is_a_pure_function_of_seed_and_index(bop_set):
+    a = ZoomSource(bop_set, "train", CFG, seed=1)
+    b = ZoomSource(bop_set, "train", CFG, seed=1)
     n = len(a.frames)
     assert a.size == 8 * n and all(f.observed for f in a.frames)
     for i in (0, 3, n + 1):
@@ -92,12 +98,21 @@ def test_zoom_source_is_a_pure_function_of_seed_and_index(tmp_path):
     t = np.stack([a.example(i)[2] for i in range(a.size)])
     assert np.abs(t[:, 0]).max() <= 3 * 0.12 + 1e-6 and np.abs(t[:, 1]).max() <= np.deg2rad(7.5) + 1e-6
     with pytest.raises(RhamlError, match="task='zoom'"):
-        ZoomSource(tmp_path / "set", "train", get_config("micro"))
+        ZoomSource(bop_set, "train", get_config("micro"))
 
 
-def test_evaluate_composes_amlnet_and_zoom(tmp_path):
-    write_training_set(tmp_path / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=6, negatives=1,
-                       workers=1)
+def test_train_cli_runs_the_zoom_stage(bop_set, tmp_path):
+    from rhaml_jax.train import main as train_main
+
+    res = train_main(["--stage", "zoom", "--config", "tiny_zoom", "--data", str(bop_set), "--out", str(tmp_path / "run"),
+                      "--steps", "2", "--batch", "4", "--val-every", "2", "--val-batches", "1", "--no-progress"])
+    assert res["step"] == 2 and np.isfinite(res["loss"])
+    assert {"range_pct", "bearing_deg", "dpsi_deg", "daxis_deg"} <= set(res["val"]) and "dx_cm" not in res["val"]
+    net, _, _ = load_model(tmp_path / "run")
+    assert net.cfg == get_config("tiny_zoom")
+
+
+def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
     for name, cfg in (("amlnet", get_config("micro")), ("zoom", get_config("tiny_zoom"))):
         net = build(cfg, jax.random.key(5))
         ck = Checkpoints(tmp_path / name, keep=1)
@@ -105,11 +120,11 @@ def test_evaluate_composes_amlnet_and_zoom(tmp_path):
                 {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
         ck.close()
     out = tmp_path / "eval.json"
-    main(["--data", str(tmp_path / "set"), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
+    main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
           "--json", str(out), "--batch", "4"])
     res = json.loads(out.read_text())
     assert res["metrics"]["zoom"] is True
-    frames = read_bop(tmp_path / "set")
+    frames = read_bop(bop_set)
     (a, ap, as_), (z, zp, zs) = load_model(tmp_path / "amlnet"), load_model(tmp_path / "zoom")
     full = [load_rgb(f.rgb) for f in frames]
     imgs = np.stack([network_image(im, f.K, a.cfg.input_hw) for im, f in zip(full, frames)]).astype(np.float32) / 255
@@ -122,7 +137,7 @@ def test_evaluate_composes_amlnet_and_zoom(tmp_path):
         if o >= 0.5:
             np.testing.assert_allclose(row["est"], e, atol=1e-4)
     with pytest.raises(RhamlError, match="not a zoom-in stage"):
-        main(["--data", str(tmp_path / "set"), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
+        main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
 
 
 def test_config_rules():
