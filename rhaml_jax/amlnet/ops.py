@@ -15,6 +15,9 @@ and by MAC counting (every multiply-accumulate is then a convolution or a matrix
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -32,15 +35,44 @@ def _window(xp, axis: int, start: int, size: int):
 
 
 # ----------------------------------------------------------------------------- depthwise
-def depthwise_1d(x, w, b=None, axis: int = 2):
-    """Depthwise 'same' convolution along `axis` (1 = H, 2 = W); w: (k, C), b: (C,)."""
-    k = w.shape[0]
-    p = k // 2
-    n = x.shape[axis]
-    xp = _pad_axis(x, axis, p)
+def _shifted_sum(x, w, axis: int):
+    """sum_j window_j(pad(x)) * w[j]: the depthwise 'same' convolution (odd k = w.shape[0])."""
+    k, n = w.shape[0], x.shape[axis]
+    xp = _pad_axis(x, axis, k // 2)
     out = _window(xp, axis, 0, n) * w[0]
     for j in range(1, k):
         out = out + _window(xp, axis, j, n) * w[j]
+    return out
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _depthwise_1d(x, w, axis: int):
+    return _shifted_sum(x, w, axis)
+
+
+def _depthwise_1d_fwd(x, w, axis):
+    return _shifted_sum(x, w, axis), (x, w)
+
+
+def _depthwise_1d_bwd(axis, res, dy):
+    # Written out because XLA's reverse mode of the k shifted slices (pads and adds of
+    # slice transposes) measured 27x the forward at the paper's stage-1 shape
+    # (experiments/profile_block_grad.py): dx is the same convolution of dy with the kernel
+    # flipped, dw[j] the per-channel sum of window_j(pad(x)) * dy.
+    x, w = res
+    k, n = w.shape[0], x.shape[axis]
+    xp = _pad_axis(x, axis, k // 2)
+    red = tuple(i for i in range(x.ndim - 1))
+    dw = jnp.stack([jnp.sum(_window(xp, axis, j, n) * dy, axis=red) for j in range(k)])
+    return _shifted_sum(dy, w[::-1], axis), dw.astype(w.dtype)
+
+
+_depthwise_1d.defvjp(_depthwise_1d_fwd, _depthwise_1d_bwd)
+
+
+def depthwise_1d(x, w, b=None, axis: int = 2):
+    """Depthwise 'same' convolution along `axis` (1 = H, 2 = W); w: (k, C) with k odd, b: (C,)."""
+    out = _depthwise_1d(x, w, axis)
     return out if b is None else out + b
 
 
