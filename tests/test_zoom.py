@@ -140,6 +140,16 @@ def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
         main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
 
 
+def test_bad_input_is_named():
+    img = np.zeros((48, 64, 3), np.uint8)
+    K = DEFAULT_CAMERA.resized(64, 48).K
+    with pytest.raises(RhamlError, match="not finite"):
+        zoom_crop(img, K, (np.nan, 0.0), CFG)
+    with pytest.raises(RhamlError, match=r"\(H, W, 3\)"):
+        zoom_crop(img[..., 0], K, (3.0, 0.0), CFG)
+    assert zoom_crop(img, K, (-2.0, 0.0), CFG).shape == (64, 64, 3)  # behind the camera: cropped at 0.5 m
+
+
 def test_config_rules():
     with pytest.raises(RhamlError, match="square input"):
         dataclasses.replace(CFG, input_hw=(64, 96))

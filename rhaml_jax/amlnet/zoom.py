@@ -52,6 +52,8 @@ def _wrap(a):
 
 def crop_transform(K: np.ndarray, guess_xy, cfg: AMLNetConfig, h: float = NOMINAL_HEIGHT_M) -> np.ndarray:
     """(2, 3) affine map from image pixels to crop pixels for the estimate (x^, y^)."""
+    if not np.all(np.isfinite(np.asarray(guess_xy, np.float64)[:2])):
+        raise RhamlError(f"zoom crop: the estimate (x, y) = {tuple(np.asarray(guess_xy)[:2])} is not finite")
     x, y = float(max(guess_xy[0], MIN_RANGE_M)), float(guess_xy[1])
     u = K[0, 2] + K[0, 0] * (-y) / x  # optical frame: (-y, h - z, x)
     v = K[1, 2] + K[1, 1] * (h - cfg.zoom_centre_z_m) / x
