@@ -146,6 +146,30 @@ def test_band_solvers_give_the_same_optimisation(x64):
     np.testing.assert_allclose(b.poses, a.poses, atol=1e-10)
 
 
+def test_ring_is_solved_banded_in_reverse_cuthill_mckee_order(x64):
+    """A ring's closing edge makes its natural order's band as wide as the ring; "auto" then
+    reorders it to width 2, solves it banded, and returns the poses in the caller's order."""
+    from rhaml_jax.pgo._solver import choose_linear_solver
+
+    rng = np.random.default_rng(7)
+    N = 31
+    a = np.linspace(0, 2 * np.pi, N, endpoint=False)
+    gt = np.stack([5 * np.cos(a), 5 * np.sin(a), a + np.pi / 2], 1)
+    g0 = ladder()
+    edges = np.array([(i, (i + 1) % N) for i in range(N)], np.int32)
+    R = lambda t: np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])  # noqa: E731
+    z = np.array([[*(R(gt[i, 2]) @ (gt[j, :2] - gt[i, :2])), np.arctan2(np.sin(gt[j, 2] - gt[i, 2]), np.cos(gt[j, 2] - gt[i, 2]))]
+                  for i, j in edges]) + rng.normal(size=(len(edges), 3)) * 0.01
+    g = PoseGraph(gt + rng.normal(size=(N, 3)) * 0.1, edges, z, np.tile(g0.information[:1], (len(edges), 1, 1)),
+                  np.arange(N), fixed=3)
+    linear, order = choose_linear_solver(g, SolverConfig())
+    assert linear == "banded" and order is not None
+    auto, dense = optimize(g, SolverConfig()), optimize(g, SolverConfig(linear_solver="dense"))
+    assert auto.final_cost == pytest.approx(dense.final_cost, rel=1e-9)
+    np.testing.assert_allclose(auto.poses, dense.poses, atol=1e-7)
+    np.testing.assert_allclose(auto.poses[3], g.poses[3], atol=1e-12)  # the gauge, in the caller's numbering
+
+
 def test_lm_and_gn_reach_the_same_minimum(x64):
     g = ladder(seed=3)
     gn = optimize(g, SolverConfig(method="gn", linear_solver="banded"))

@@ -51,6 +51,9 @@ def main(argv: list[str] | None = None) -> dict:
     from . import SolverConfig, optimize, read_g2o, write_g2o
     from ._solver import choose_linear_solver
 
+    def _solver_name(linear, order):
+        return linear if order is None else f"{linear} (reverse Cuthill-McKee node order)"
+
     if not args.graph.is_file():
         raise RhamlError(f"{args.graph}: no such g2o file")
     if args.robust_delta <= 0:
@@ -74,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
         "accepted": res.accepted,
         "nodes": graph.num_nodes,
         "edges": graph.num_edges,
-        "linear_solver": choose_linear_solver(graph, cfg),
+        "linear_solver": _solver_name(*choose_linear_solver(graph, cfg)),
         "method": args.method,
         "init": args.init,
     }

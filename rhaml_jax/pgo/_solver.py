@@ -244,15 +244,44 @@ def _robust_edges(graph: PoseGraph) -> jax.Array:
     return jnp.asarray(graph.robust_edges, bool)
 
 
-def choose_linear_solver(graph: PoseGraph, cfg: SolverConfig) -> str:
-    """"auto": banded when the node bandwidth is small (chains, the RHAML ladder), else dense
-    for small graphs and sparse above `dense_max_nodes`."""
+def _bandwidth(graph: PoseGraph) -> int:
+    return node_bandwidth(block_structure(graph.num_nodes, graph.edges, graph.fixed))
+
+
+def permute_nodes(graph: PoseGraph, order: np.ndarray) -> PoseGraph:
+    """The same graph with node k of the result = node order[k] of `graph`."""
+    inv = np.empty_like(order)
+    inv[order] = np.arange(order.size)
+    return graph._replace(poses=graph.poses[order], edges=inv[graph.edges].astype(np.int32), ids=graph.ids[order],
+                          fixed=int(inv[graph.fixed]))
+
+
+def banded_order(graph: PoseGraph, max_width: int) -> np.ndarray | None:
+    """A node order under which the graph is banded (node bandwidth <= max_width), from the
+    reverse Cuthill-McKee ordering of its edges, or None. A ring's natural order has a band as
+    wide as the ring (its closing edge); reverse Cuthill-McKee folds it to width 2."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    n = graph.num_nodes
+    e = np.asarray(graph.edges)
+    A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    order = np.asarray(reverse_cuthill_mckee(A + A.T, symmetric_mode=True), np.int64)
+    return order if _bandwidth(permute_nodes(graph, order)) <= max_width else None
+
+
+def choose_linear_solver(graph: PoseGraph, cfg: SolverConfig) -> tuple[str, np.ndarray | None]:
+    """"auto": banded when the node bandwidth is small (chains, the RHAML ladder, and graphs
+    that reverse Cuthill-McKee makes so, like rings: then with that node order), else dense for
+    small graphs and sparse above `dense_max_nodes`. Returns (solver, node order or None)."""
     if cfg.linear_solver != "auto":
-        return cfg.linear_solver
-    struct = block_structure(graph.num_nodes, graph.edges, graph.fixed)
-    if node_bandwidth(struct) <= cfg.banded_max_width:
-        return "banded"
-    return "dense" if graph.num_nodes <= cfg.dense_max_nodes else "sparse"
+        return cfg.linear_solver, None
+    if _bandwidth(graph) <= cfg.banded_max_width:
+        return "banded", None
+    order = banded_order(graph, cfg.banded_max_width)
+    if order is not None:
+        return "banded", order
+    return ("dense" if graph.num_nodes <= cfg.dense_max_nodes else "sparse"), None
 
 
 _COMPILED: dict = {}
@@ -281,10 +310,12 @@ def optimize(graph: PoseGraph, config: SolverConfig = SolverConfig(), dtype=None
         from ._chordal import chordal_initialization
 
         graph = graph._replace(poses=chordal_initialization(graph))
-    linear = choose_linear_solver(graph, config)
-    p = make_problem(graph, linear, dtype)
+    linear, order = choose_linear_solver(graph, config)
+    p = make_problem(graph if order is None else permute_nodes(graph, order), linear, dtype)
     (T, c0, c1, it, acc, conv), seconds, compile_s = solve_problem(p, config, linear)
     poses = np.asarray(se2_to_poses(jaxlie.SE2(T)))[: graph.num_nodes]
+    if order is not None:
+        poses = poses[np.argsort(order)]
     return SolveResult(poses, float(c0), float(c1), int(it), int(acc), bool(conv), seconds, compile_s)
 
 
