@@ -10,8 +10,11 @@ Public API:
 - counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
 - training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
-  `shipped_checkpoint("amlnet_cpu")` (the weights in the package); `ToyRectangles` is a toy
-  source for tests only.
+  `shipped_checkpoint("amlnet_cpu" | "zoom_cpu")` (the weights in the package);
+  `ToyRectangles` is a toy source for tests only;
+- zoom-in stage (`rhaml_jax.amlnet.zoom`): `zoom_crop`, `apply_correction`,
+  `correction_targets`, `ZoomSource` (a small AMLNet on a crop around AMLNet's estimate, which
+  supplies the heading the CPU-size network cannot see).
 """
 
 from rhaml_jax.amlnet.acn import acn, acn_reference
