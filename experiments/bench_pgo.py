@@ -79,9 +79,8 @@ def bench_datasets(names, repeats, rows):
 
 def _time_rhaml(rv, repeats, config):
     """(median s, compile wall s, compile CPU s, result) of `rhaml_pgo_jit` on `rv`."""
-    fn = rhaml_pgo_jit
     t, c = time.perf_counter(), time.process_time()
-    compiled = fn.lower(rv, config=config).compile()
+    compiled = rhaml_pgo_jit.lower(rv, config=config).compile()
     compile_s, compile_cpu = time.perf_counter() - t, time.process_time() - c
     out = jax.block_until_ready(compiled(rv))
     ts = []
@@ -115,7 +114,6 @@ def bench_rhaml(K, repeats):
 
 
 def outlier_table(K, seeds):
-    fn = rhaml_pgo_jit
     kernels = {
         "none": RhamlPGOConfig(),
         "huber (k=1)": RhamlPGOConfig(solver=SolverConfig(linear_solver="banded", robust="huber", robust_delta=1.0,
@@ -129,7 +127,7 @@ def outlier_table(K, seeds):
             et, er = [], []
             for seed in range(seeds):
                 sim = simulate_rendezvous(K, seed=100 + seed, outlier_fraction=frac)
-                out = fn(jax.tree.map(jnp.asarray, sim.rendezvous), config=cfg)
+                out = rhaml_pgo_jit(jax.tree.map(jnp.asarray, sim.rendezvous), config=cfg)
                 e = np.asarray(out.a0_T_b0) - sim.a0_T_b0
                 et.append(100 * np.hypot(e[0], e[1]))
                 er.append(np.rad2deg(abs(np.arctan2(np.sin(e[2]), np.cos(e[2])))))

@@ -96,7 +96,6 @@ def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None) -> tupl
 def run(args: Args) -> dict:
     from rhaml_jax import metrics
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
-    from rhaml_jax.amlnet.checkpoint import SHIPPED_DIR
     from rhaml_jax.data import read_bop
 
     modules = [m for m in args.modules.split(",") if m]
@@ -110,7 +109,7 @@ def run(args: Args) -> dict:
     frames = read_bop(args.data, args.split, args.scene)
     net, params, stats = load_model(args.amlnet or shipped_checkpoint("amlnet_cpu"))
     zoom_dir = args.zoom
-    if zoom_dir is None and args.amlnet is None and (SHIPPED_DIR / "zoom_cpu" / "checkpoints").is_dir():
+    if zoom_dir is None and args.amlnet is None and not args.no_zoom:
         zoom_dir = shipped_checkpoint("zoom_cpu")  # the shipped AMLNet's own zoom stage
     zoom = None if args.no_zoom or zoom_dir is None else load_model(zoom_dir)
     if zoom is not None and zoom[0].cfg.task != "zoom":

@@ -165,6 +165,7 @@ def test_ring_is_solved_banded_in_reverse_cuthill_mckee_order(x64):
     linear, order = choose_linear_solver(g, SolverConfig())
     assert linear == "banded" and order is not None
     auto, dense = optimize(g, SolverConfig()), optimize(g, SolverConfig(linear_solver="dense"))
+    assert (auto.linear_solver, auto.reordered, dense.linear_solver, dense.reordered) == ("banded", True, "dense", False)
     assert auto.final_cost == pytest.approx(dense.final_cost, rel=1e-9)
     np.testing.assert_allclose(auto.poses, dense.poses, atol=1e-7)
     np.testing.assert_allclose(auto.poses[3], g.poses[3], atol=1e-12)  # the gauge, in the caller's numbering

@@ -64,6 +64,6 @@ def amlnet_loss(out, observed, pose, angle_head: str = "psi", w_psi: float = 3.0
     loss_p = jnp.sum(observed * (err + w_psi * ang)) / n_pos
     loss = loss_o + w_p * loss_p
     # loss_psi: the unweighted heading term alone, to tell a heading stuck at the mean
-    # predictor (1 for the cossin head, pi^2/3 for psi) from a slow position term.
+    # predictor (1 for the cossin head, 2 for axis, pi^2/3 for psi) from a slow position term.
     loss_psi = jnp.sum(observed * ang) / n_pos
     return loss, {"loss": loss, "loss_o": loss_o, "loss_p": loss_p, "loss_psi": loss_psi}

@@ -62,7 +62,7 @@ def _depthwise_1d_bwd(axis, res, dy):
     x, w = res
     k, n = w.shape[0], x.shape[axis]
     xp = _pad_axis(x, axis, k // 2)
-    red = tuple(i for i in range(x.ndim - 1))
+    red = tuple(range(x.ndim - 1))
     dw = jnp.stack([jnp.sum(_window(xp, axis, j, n) * dy, axis=red) for j in range(k)])
     return _shifted_sum(dy, w[::-1], axis), dw.astype(w.dtype)
 

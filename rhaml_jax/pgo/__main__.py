@@ -49,10 +49,6 @@ def main(argv: list[str] | None = None) -> dict:
 
     jax.config.update("jax_enable_x64", not args.float32)
     from . import SolverConfig, optimize, read_g2o, write_g2o
-    from ._solver import choose_linear_solver
-
-    def _solver_name(linear, order):
-        return linear if order is None else f"{linear} (reverse Cuthill-McKee node order)"
 
     if not args.graph.is_file():
         raise RhamlError(f"{args.graph}: no such g2o file")
@@ -77,7 +73,7 @@ def main(argv: list[str] | None = None) -> dict:
         "accepted": res.accepted,
         "nodes": graph.num_nodes,
         "edges": graph.num_edges,
-        "linear_solver": _solver_name(*choose_linear_solver(graph, cfg)),
+        "linear_solver": res.linear_solver + (" (reverse Cuthill-McKee node order)" if res.reordered else ""),
         "method": args.method,
         "init": args.init,
     }

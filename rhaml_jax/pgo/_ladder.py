@@ -6,8 +6,8 @@ odometry A_{k-1} -> A_k, B's odometry B_{k-1} -> B_k and the mutual edge between
 tridiagonal with 6 x 6 blocks: D_m holds the two nodes' own blocks and the mutual coupling,
 the sub-diagonal block A[m, m-1] = diag(odometry A, odometry B couplings). These blocks are
 put together here directly from the per-edge J^T W J products with reshapes and one shift
-(no scatter, no block lists), and the system is solved by `band_solve` (block LDL^T in XLA
-or LAPACK's banded Cholesky on the host, `SolverConfig.band_solver`).
+(no scatter, no block lists), and the system is solved by `band_solve` (block LDL^T,
+`SolverConfig.band_solver`).
 The gauge A_0 stays in group 0 as a variable with an identity block, no coupling and a zero
 right-hand side, so its step is exactly zero.
 """

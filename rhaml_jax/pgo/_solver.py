@@ -316,7 +316,8 @@ def optimize(graph: PoseGraph, config: SolverConfig = SolverConfig(), dtype=None
     poses = np.asarray(se2_to_poses(jaxlie.SE2(T)))[: graph.num_nodes]
     if order is not None:
         poses = poses[np.argsort(order)]
-    return SolveResult(poses, float(c0), float(c1), int(it), int(acc), bool(conv), seconds, compile_s)
+    return SolveResult(poses, float(c0), float(c1), int(it), int(acc), bool(conv), seconds, compile_s, linear,
+                       order is not None)
 
 
 def graph_cost(graph: PoseGraph, poses: np.ndarray | None = None, robust: str = "none",

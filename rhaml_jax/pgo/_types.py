@@ -90,3 +90,5 @@ class SolveResult(NamedTuple):
     converged: bool  # a tolerance was met (not max_iterations)
     seconds: float  # wall time of the compiled solve
     compile_seconds: float  # wall time of tracing + compiling (0 when cached)
+    linear_solver: str = ""  # the linear solver used ("banded", "dense", "sparse"; "auto" resolved)
+    reordered: bool = False  # solved in a reverse Cuthill-McKee node order (poses are in the caller's)
