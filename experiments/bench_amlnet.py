@@ -3,10 +3,14 @@
 by side in one run, plus the machine's matmul ceiling and the depthwise-kernel alternatives.
 
   python experiments/bench_amlnet.py [--config paper] [--batch 8] [--runs 3] [--rounds 2]
-      [--fused] [--kernels] [--no-torch] [--json OUT]
+      [--fused] [--kernels] [--no-torch] [--system-malloc] [--json OUT]
 
 Rounds interleave JAX inference, torch inference, JAX training step, torch training step, so
-that load from other processes hits both alike; every figure is a median over all timed calls.
+that load from other processes hits both alike; every figure is a median over all timed calls
+(PyTorch's: medians over rounds of its script's mean over --runs calls). This process calls
+rhaml_jax.allocator.tune_allocator (as the package's command-line tools do) unless
+--system-malloc; PyTorch runs twice per round, as shipped and with the same glibc settings
+through the environment, and both ratios are reported.
 Training MACs are counted as 3x the forward MACs (forward + two backward products).
 --fused also times the training step as ONE jit (value_and_grad + AdamW), the variant that was
 ~6x slower on XLA's CPU backend; --kernels times the depthwise / ACN alternatives alone.
@@ -16,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -29,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 TORCH_SCRIPT = ROOT.parent / "shared" / "bench" / "torch_amlnet.py"
 
+from rhaml_jax.allocator import tune_allocator  # noqa: E402
 from rhaml_jax.amlnet import ops  # noqa: E402
 from rhaml_jax.amlnet.acn import acn, acn_reference, init_acn_params  # noqa: E402
 from rhaml_jax.amlnet.bench import ModelBench, matmul_gmacs, median_seconds  # noqa: E402
@@ -46,11 +52,17 @@ print(json.dumps({"gmacs": 2048**3 / statistics.median(ts) / 1e9}))
 """
 
 
-def torch_run(args, train: bool, runs: int) -> dict:
+# glibc's environment equivalent of rhaml_jax.allocator.tune_allocator, for the PyTorch
+# process: PyTorch's CPU tensors come from malloc too, and page faults slow it as well.
+TUNED_MALLOC_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(2**31 - 1)}
+
+
+def torch_run(args, train: bool, runs: int, tuned_malloc: bool = False) -> dict:
     cmd = [sys.executable, str(TORCH_SCRIPT), "--batch", str(args.batch), "--size", "224", "--runs", str(runs)]
     if train:
         cmd.append("--train")
-    r = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    env = {k: v for k, v in os.environ.items() if k not in TUNED_MALLOC_ENV}
+    r = subprocess.run(cmd, capture_output=True, text=True, check=True, env={**env, **TUNED_MALLOC_ENV} if tuned_malloc else env)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
@@ -124,14 +136,16 @@ def main():
     ap.add_argument("--fused", action="store_true")
     ap.add_argument("--kernels", action="store_true")
     ap.add_argument("--no-torch", action="store_true")
+    ap.add_argument("--system-malloc", action="store_true", help="do not call rhaml_jax.allocator.tune_allocator")
     ap.add_argument("--cache", default="/tmp/rhaml_jax_cache", help="JAX persistent compilation cache ('' = off)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
+    malloc_tuned = False if args.system_malloc else tune_allocator()
     if args.cache:
         jax.config.update("jax_compilation_cache_dir", args.cache)
     cfg = get_config(args.config)
     use_torch = not args.no_torch and args.config == "paper" and cfg.input_hw == (224, 224)
-    res = {"config": cfg.name, "batch": args.batch, "command": "python " + " ".join(sys.argv)}
+    res = {"config": cfg.name, "batch": args.batch, "command": "python " + " ".join(sys.argv), "jax_malloc_tuned": malloc_tuned}
     res["macs_per_image"] = macs = count_macs(cfg)
     res["jax_matmul_gmacs"] = matmul_gmacs()
     if use_torch:
@@ -142,14 +156,16 @@ def main():
     b.train_s(1)
     res["jax_compile_and_first_calls_s"] = time.perf_counter() - t0
     res["jax_compile_s"] = dict(b.compile_s)
-    ji, jt, ti, tt, jf = [], [], [], [], []
+    ji, jt, ti, tt, jf, tti, ttt = [], [], [], [], [], [], []
     for r in range(args.rounds):
         ji += b.inference_s(args.runs)
         if use_torch:
             ti.append(torch_run(args, False, args.runs)["s_per_batch"])
+            tti.append(torch_run(args, False, args.runs, tuned_malloc=True)["s_per_batch"])
         jt += b.train_s(args.runs)
         if use_torch:
             tt.append(torch_run(args, True, args.runs)["s_per_batch"])
+            ttt.append(torch_run(args, True, args.runs, tuned_malloc=True)["s_per_batch"])
         if args.fused:
             jf += b.train_s(args.runs, fused=True)
         print(f"round {r + 1}/{args.rounds} done", file=sys.stderr, flush=True)
@@ -175,6 +191,10 @@ def main():
         res["torch_train_gmacs"] = 3 * macs * args.batch / med(tt) / 1e9
         res["inference_ratio_jax_over_torch"] = med(ti) / med(ji)
         res["train_ratio_jax_over_torch"] = med(tt) / med(jt)
+        res["torch_tuned_malloc_inference_s"] = tti
+        res["torch_tuned_malloc_train_s"] = ttt
+        res["inference_ratio_jax_over_torch_tuned_malloc"] = med(tti) / med(ji)
+        res["train_ratio_jax_over_torch_tuned_malloc"] = med(ttt) / med(jt)
     if args.kernels:
         res["kernels"] = kernels_bench(args.runs * args.rounds)
     text = json.dumps(res, indent=1)

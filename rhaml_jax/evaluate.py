@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 
+from rhaml_jax.allocator import tune_allocator
 from rhaml_jax.errors import RhamlError, run_cli
 
 __all__ = ["Args", "evaluate_iml", "main"]
@@ -139,6 +140,7 @@ def run(args: Args) -> dict:
 
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
+    tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
     res = run(args)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

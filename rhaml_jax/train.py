@@ -19,6 +19,7 @@ from typing import Literal
 
 import tyro
 
+from rhaml_jax.allocator import tune_allocator
 from rhaml_jax.amlnet.trainer import TrainConfig
 from rhaml_jax.errors import RhamlError, run_cli
 
@@ -82,6 +83,7 @@ def zoom_sources(args: Args, cfg):
 
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
+    tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
     if args.stage == "refiner":
         raise RhamlError("--stage refiner: the refiner trainer is not part of this build yet")
     from rhaml_jax.amlnet.config import get_config

@@ -102,6 +102,32 @@ def test_depthwise_gradient_matches_the_reference_convolution():
             np.testing.assert_allclose(a, r, atol=1e-4, rtol=1e-4)
 
 
+def test_gelu_matches_jax_exact_gelu_and_its_derivative():
+    """The erf-based GELU with its own JVP against jax.nn.gelu(approximate=False) (erfc form),
+    values and first derivatives, from deep in the negative tail to large positive inputs and
+    at 0; and against central finite differences in float64."""
+    h = jnp.concatenate([jnp.linspace(-12.0, 12.0, 2001), jnp.array([0.0, -0.0, 1e-8, -1e-8])])
+    ref = lambda z: jax.nn.gelu(z, approximate=False)
+    np.testing.assert_allclose(ops.gelu(h), ref(h), atol=1e-6, rtol=1e-6)
+    d, d_ref = (jax.vmap(jax.grad(f))(h) for f in (ops.gelu, ref))
+    np.testing.assert_allclose(d, d_ref, atol=1e-6, rtol=1e-5)
+    with jax.enable_x64(True):
+        z = jnp.linspace(-6.0, 6.0, 61, dtype=jnp.float64)
+        eps = 1e-6
+        fd = (ops.gelu(z + eps) - ops.gelu(z - eps)) / (2 * eps)
+        np.testing.assert_allclose(jax.vmap(jax.grad(ops.gelu))(z), fd, atol=1e-8)
+
+
+def test_mlp_gradient_matches_reference():
+    x = jax.random.normal(jax.random.key(1), (2, 5, 6, 8))
+    w1, w2 = (0.3 * jax.random.normal(jax.random.key(i), s) for i, s in ((2, (8, 16)), (3, (16, 8))))
+    b1, b2 = jax.random.normal(jax.random.key(4), (16,)), jax.random.normal(jax.random.key(5), (8,))
+    ct = jax.random.normal(jax.random.key(6), x.shape)
+    grads = [jax.grad(lambda *a, f=f: jnp.sum(f(*a) * ct), argnums=(0, 1, 2, 3, 4))(x, w1, b1, w2, b2) for f in (ops.mlp, ops.mlp_ref)]
+    for a, r in zip(*grads):
+        np.testing.assert_allclose(a, r, atol=1e-4, rtol=1e-4)
+
+
 @pytest.mark.parametrize("name", ["tiny", "tiny_k0"])
 def test_block_matches_reference(name):
     cfg = get_config(name)

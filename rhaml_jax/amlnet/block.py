@@ -51,9 +51,9 @@ class AIncepBlock(nnx.Module):
         self.drop_path = float(cfg.drop_path)
 
     def __call__(self, x, train: bool, key=None, impl: str = "fast"):
-        pw = ops.pointwise if impl == "fast" else ops.pointwise_ref
+        mlp = ops.mlp if impl == "fast" else ops.mlp_ref
         y = self.norm(self.mixer(x, impl), train)
-        y = pw(jax.nn.gelu(pw(y, self.fc1[...], self.fc1_b[...]), approximate=False), self.fc2[...], self.fc2_b[...])
+        y = mlp(y, self.fc1[...], self.fc1_b[...], self.fc2[...], self.fc2_b[...])
         y = y * self.gamma[...]
         if train and self.drop_path > 0.0 and key is not None:
             keep = 1.0 - self.drop_path

@@ -1,0 +1,42 @@
+"""`tune_allocator`: after it, freeing and reallocating a large buffer reuses the same pages
+(no new page faults); without it glibc returns them to the kernel (mmap) and faults again."""
+
+import subprocess
+import sys
+
+import pytest
+
+PROBE = r"""
+import resource, sys
+import numpy as np
+np._core.multiarray._set_madvise_hugepage(False)  # 4 KB pages, so faults count pages
+if sys.argv[1] == "tuned":
+    from rhaml_jax.allocator import tune_allocator
+    assert tune_allocator() and tune_allocator()  # applied, and idempotent
+for i in range(3):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    a = np.ones(64 << 20, np.uint8)  # 64 MB, touched
+    del a
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+print(faults)
+"""
+
+
+def _faults(mode: str) -> int:
+    out = subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True)
+    return int(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc tuning is Linux-only")
+def test_tuned_allocator_reuses_pages():
+    pages = (64 << 20) // 4096
+    assert _faults("system") > pages // 2  # a fresh mmap every time: the test can fail
+    assert _faults("tuned") < pages // 20
+
+
+def test_opt_out(monkeypatch):
+    import rhaml_jax.allocator as alloc
+
+    monkeypatch.setattr(alloc, "_applied", False)
+    monkeypatch.setenv("RHAML_JAX_MALLOC", "system")
+    assert alloc.tune_allocator() is False
