@@ -7,7 +7,8 @@ At the shapes of the paper's stage 1 (8 x 56 x 56 x 96) and stage 3 (8 x 14 x 14
 jitted forward and jitted grad (of sum(out^2) with respect to parameters and input) of: the
 whole block (training mode), its token mixer, the ACN branch, one 1 x 11 depthwise branch, the
 MLP (two 1 x 1 convolutions with GELU) and the BatchNorm. Calls interleaved over 5 rounds,
-medians. A grad / forward ratio far above 3 points at a backward pass worth writing by hand.
+medians; glibc malloc tuned as by the command-line tools (rhaml_jax.allocator). A grad /
+forward ratio far above 3 points at a backward pass worth writing by hand.
 """
 import statistics
 import sys
@@ -19,6 +20,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from rhaml_jax.allocator import tune_allocator  # noqa: E402
 from rhaml_jax.amlnet import ops  # noqa: E402
 from rhaml_jax.amlnet.block import AIncepBlock  # noqa: E402
 from rhaml_jax.amlnet.config import get_config  # noqa: E402
@@ -49,6 +51,7 @@ def part_fn(gd, rest, part: str, C: int):
 
 
 def main():
+    tune_allocator()
     cfg = get_config("paper")
     for H, C, ratio in ((56, 96, 4), (14, 384, 4)):
         gd, params, rest = nnx.split(AIncepBlock(C, ratio, cfg, init=HostInit(jax.random.key(0))), nnx.Param, ...)

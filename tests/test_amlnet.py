@@ -79,6 +79,7 @@ def test_kernels_match_lax_reference():
         for axis in (1, 2):
             out.append((ops.depthwise_1d(x, w, b, axis), ops.depthwise_1d_ref(x, w, b, axis)))
             out.append((ops.dense_1d(x, wd, None, axis), ops.dense_1d_ref(x, wd, None, axis)))
+            out.append((ops.pointwise(ops.im2col_1d(x, 5, axis), wd.reshape(20, 3)), ops.dense_1d_ref(x, wd, None, axis)))
         out.append((ops.depthwise_2d(x, w2, b), ops.depthwise_2d_ref(x, w2, b)))
         out.append((ops.patchify(x, wp), ops.patchify_ref(x, wp)))
         out.append((ops.pointwise(x, w1), ops.pointwise_ref(x, w1)))

@@ -35,20 +35,20 @@ def acn(p: dict, x, kernels: tuple[int, ...], dense: bool):
     if not kernels:
         return ops.depthwise_2d(x, p["w"], p["b"])
     n, c = len(kernels), x.shape[-1]
-    h, w = x.shape[1:3]
     if dense:
-        # XLA's dense CPU convolution is fast (15-22 GMAC/s measured); what costs is the
-        # number of convolutions, so per direction the n kernels are zero-padded to the
-        # largest size and stacked into ONE 1 x kmax conv with n*C outputs.  Measured
-        # against 2n separate convolutions and a "taps first" matmul + shifted sums in
-        # experiments/bench_amlnet.py --kernels (BENCHMARKS.md, AMLNet).
+        # im2col: per direction, the kmax shifted copies of x side by side (B, H, W, kmax C)
+        # times ONE (kmax C, n C) matrix holding every kernel, zero-padded to kmax taps.
+        # XLA's convolution was as fast forward but its backward (the weight gradient above
+        # all, at C = 12 and 24) was 7.5x the forward; as matrix products the ACN's gradient
+        # takes 37 / 23 / 12 ms instead of 72 / 29 / 18 ms at the paper's stages 1-3, and its
+        # stage-3 forward 3.5 instead of 5.8 ms (batch 8; BENCHMARKS.md, AMLNet speed).
         m = _mix_weights(ops.pointwise(x, p["mix"]), n)
         kmax = max(kernels)
         out = x
         for ui, (u, axis) in enumerate((("x", 2), ("y", 1))):
             w = jnp.concatenate([jnp.pad(p[f"{u}{k}"], ((kmax // 2 - k // 2,) * 2, (0, 0), (0, 0))) for k in kernels], axis=2)
             b = jnp.concatenate([p[f"b{u}{k}"] for k in kernels])
-            y = ops.dense_1d_ref(x, w, b, axis=axis)
+            y = ops.pointwise(ops.im2col_1d(x, kmax, axis), w.reshape(kmax * c, n * c), b)
             for v in range(n):
                 out = out + m[..., ui, v, None] * y[..., v * c : (v + 1) * c]
         return out

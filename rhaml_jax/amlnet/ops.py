@@ -6,9 +6,10 @@ convolution runs at 0.1-0.2 GMAC/s there, several hundred times below a matmul, 
   the whole sum into one loop);
 - 1x1 convolutions and the patchify convolutions (stem 4x4/4, downsampling 2x2/2) are
   reshapes + matrix products;
-- dense 1xk / kx1 convolutions stay XLA convolutions (15-22 GMAC/s here, faster than the
-  "taps first" alternative `dense_1d`, kept for the benchmark: one matmul of the input with
-  every tap's matrix side by side, then shifted sums; see acn.py).
+- dense 1xk / kx1 convolutions are im2col matrix products (`im2col_1d`; XLA's own
+  convolution was as fast forward, but its weight gradient at 12-24 channels was not), not
+  the "taps first" alternative `dense_1d`, kept for the benchmark: one matmul of the input
+  with every tap's matrix side by side, then shifted sums; see acn.py.
 "reference": the same operations as plain `lax.conv_general_dilated` calls; used by the tests
 and by MAC counting (every multiply-accumulate is then a convolution or a matrix product).
 """
@@ -183,6 +184,15 @@ def dense_1d_ref(x, w, b=None, axis: int = 2):
     kern = w[None] if axis == 2 else w[:, None]
     out = lax.conv_general_dilated(x, kern, (1, 1), "SAME", dimension_numbers=DN)
     return out if b is None else out + b
+
+
+def im2col_1d(x, k: int, axis: int):
+    """(B, H, W, C) -> (B, H, W, k C): the k 'same'-padded windows along `axis` side by side,
+    window j in channels [j C, (j + 1) C); times a (k C, C_out) matrix it is a 1xk / kx1
+    convolution."""
+    n = x.shape[axis]
+    xp = _pad_axis(x, axis, k // 2)
+    return jnp.concatenate([_window(xp, axis, j, n) for j in range(k)], axis=-1)
 
 
 def dense_1d(x, w, b=None, axis: int = 2):
