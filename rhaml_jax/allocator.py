@@ -1,11 +1,11 @@
 """Keep freed memory in the process instead of handing it back to the kernel (glibc only).
 
 XLA's CPU runtime allocates every execution's buffers with malloc. glibc serves the large ones
-with fresh mmap pages, or trims them from its per-thread arenas on free, so each training
-step touches hundreds of MB of new pages: 145,000 minor page faults per step of the reduced
-paper network in experiments/bench_amlnet.py, about 0.4 s of kernel time per ~1.1 s step on
-this VM. With one arena, no mmap and no trimming, the same step takes 0 faults and runs
-~15-20 % faster (BENCHMARKS.md, AMLNet speed). The cost: the process keeps its peak heap.
+with fresh mmap pages, or trims them from its arenas on free, so each training step touches
+its working set anew: 565,000 minor page faults (2.3 GB) per training step of the paper-size
+AMLNet at batch 8, 0 with these settings (experiments/bench_amlnet.py reports the count; the
+step's median time in alternating runs: 6.6 s -> 5.5 s, BENCHMARKS.md). The cost: the process
+keeps its peak heap.
 
 `tune_allocator()` is what the command-line tools call first; library users call it
 themselves, early (before JAX starts its threads), or set RHAML_JAX_MALLOC=system to opt out.
@@ -41,6 +41,6 @@ def tune_allocator() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    ok = all(mallopt(p, v) == 1 for p, v in ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, 2**31 - 1)))
+    ok = all(mallopt(p, v) == 1 for p, v in ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, -1)))
     _applied = ok
     return ok

@@ -38,10 +38,10 @@ def acn(p: dict, x, kernels: tuple[int, ...], dense: bool):
     if dense:
         # im2col: per direction, the kmax shifted copies of x side by side (B, H, W, kmax C)
         # times ONE (kmax C, n C) matrix holding every kernel, zero-padded to kmax taps.
-        # XLA's convolution was as fast forward but its backward (the weight gradient above
-        # all, at C = 12 and 24) was 7.5x the forward; as matrix products the ACN's gradient
-        # takes 37 / 23 / 12 ms instead of 72 / 29 / 18 ms at the paper's stages 1-3, and its
-        # stage-3 forward 3.5 instead of 5.8 ms (batch 8; BENCHMARKS.md, AMLNet speed).
+        # XLA's own convolution (the form before) was as fast forward, but its backward, the
+        # weight gradient above all, was 5-7x its forward at C = 12 and 24: as matrix
+        # products the gradient takes about half the time at the paper's stage 1
+        # (experiments/bench_acn.py; BENCHMARKS.md, AMLNet speed).
         m = _mix_weights(ops.pointwise(x, p["mix"]), n)
         kmax = max(kernels)
         out = x

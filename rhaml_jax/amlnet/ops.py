@@ -139,8 +139,7 @@ def gelu(h):
 
     jax.nn.gelu's exact form goes through erfc, which XLA's CPU backend lowers to two
     exponential-and-select passes, and its derivative through them again; this one is one
-    erf pass forward and one erf + exp pass backward (Phi + h phi), which measured ~7 % of
-    the reduced paper network's training step (experiments/bench_amlnet.py)."""
+    erf pass forward and one erf + exp pass backward (Phi + h phi)."""
     return h * _normal_cdf(h)
 
 
