@@ -9,9 +9,7 @@ stacked) and against the reference (six lax convolutions, eq. 2 term by term).
 Medians of --runs calls after a warm-up; glibc malloc tuned as by the command-line tools.
 """
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -21,6 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rhaml_jax.allocator import tune_allocator  # noqa: E402
 from rhaml_jax.amlnet import ops  # noqa: E402
 from rhaml_jax.amlnet.acn import _mix_weights, acn, acn_reference, init_acn_params  # noqa: E402
+from rhaml_jax.amlnet.bench import median_seconds  # noqa: E402
 
 K = (3, 5, 7)
 
@@ -39,13 +38,8 @@ def acn_stacked_conv(p, x, kernels, dense):
 
 
 def median_ms(f, args, runs):
-    jax.block_until_ready(f(*args))
-    ts = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(ts)
+    jax.block_until_ready(f(*args))  # compile and warm up
+    return 1e3 * median_seconds(lambda: f(*args), runs)[0]
 
 
 def main():

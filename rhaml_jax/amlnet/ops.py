@@ -115,6 +115,11 @@ def pointwise(x, w, b=None):
     return out if b is None else out + b
 
 
+def pointwise_ref(x, w, b=None):
+    out = lax.conv_general_dilated(x, w[None, None], (1, 1), "VALID", dimension_numbers=DN)
+    return out if b is None else out + b
+
+
 def mlp_ref(x, w1, b1, w2, b2):
     """InceptionNeXt's MLP: 1x1 conv, exact (erf) GELU, 1x1 conv, as lax convolutions."""
     return pointwise_ref(jax.nn.gelu(pointwise_ref(x, w1, b1), approximate=False), w2, b2)
@@ -148,11 +153,6 @@ def _gelu_jvp(primals, tangents):
     (h,), (t,) = primals, tangents
     cdf = _normal_cdf(h)
     return h * cdf, t * (cdf + h * jnp.exp(-0.5 * h * h) * _INV_SQRT_2PI)
-
-
-def pointwise_ref(x, w, b=None):
-    out = lax.conv_general_dilated(x, w[None, None], (1, 1), "VALID", dimension_numbers=DN)
-    return out if b is None else out + b
 
 
 def patchify(x, w, b=None):
