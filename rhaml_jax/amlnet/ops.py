@@ -108,9 +108,9 @@ def depthwise_2d_ref(x, w, b=None):
 def pointwise(x, w, b=None):
     """1x1 convolution as a matrix product; w: (C_in, C_out)."""
     # As a 2-D product: with a 4-D einsum, XLA gave the weight gradient's operand a
-    # transposed layout and fused GELU's derivative into that transposing copy (540 ms of
-    # a 790 ms MLP gradient at the paper's stage-1 shape); 2-D, the paper's stage-1 block
-    # forward + backward went from 448 to 369 ms (experiments/profile_block_grad.py).
+    # transposed layout and fused GELU's derivative into that transposing copy (a profiler
+    # trace showed it); 2-D, the paper's stage-1 block forward + backward went from 448 to
+    # 369 ms (experiments/profile_block_grad.py).
     out = (x.reshape(-1, x.shape[-1]) @ w).reshape(*x.shape[:-1], w.shape[-1])
     return out if b is None else out + b
 
