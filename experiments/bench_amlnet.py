@@ -54,8 +54,9 @@ print(json.dumps({"gmacs": 2048**3 / statistics.median(ts) / 1e9}))
 
 
 # glibc's environment equivalent of rhaml_jax.allocator.tune_allocator, for the PyTorch
-# process: PyTorch's CPU tensors come from malloc too, and page faults slow it as well.
-TUNED_MALLOC_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(2**31 - 1)}
+# process: PyTorch's CPU tensors come from malloc too, and page faults slow it as well
+# (a trim threshold beyond any heap: never trim, as mallopt's -1).
+TUNED_MALLOC_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(2**62)}
 
 
 def torch_run(args, train: bool, runs: int, tuned_malloc: bool = False) -> dict:
