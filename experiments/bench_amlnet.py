@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 TORCH_SCRIPT = ROOT.parent / "shared" / "bench" / "torch_amlnet.py"
 
-from rhaml_jax.allocator import tune_allocator  # noqa: E402
+from rhaml_jax.allocator import MALLOC_ENV, tune_allocator  # noqa: E402
 from rhaml_jax.amlnet import ops  # noqa: E402
 from rhaml_jax.amlnet.acn import acn, acn_reference, init_acn_params  # noqa: E402
 from rhaml_jax.amlnet.bench import ModelBench, matmul_gmacs, median_seconds  # noqa: E402
@@ -53,18 +53,13 @@ print(json.dumps({"gmacs": 2048**3 / statistics.median(ts) / 1e9}))
 """
 
 
-# glibc's environment equivalent of rhaml_jax.allocator.tune_allocator, for the PyTorch
-# process: PyTorch's CPU tensors come from malloc too, and page faults slow it as well
-# (a trim threshold beyond any heap: never trim, as mallopt's -1).
-TUNED_MALLOC_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(2**62)}
-
-
 def torch_run(args, train: bool, runs: int, tuned_malloc: bool = False) -> dict:
     cmd = [sys.executable, str(TORCH_SCRIPT), "--batch", str(args.batch), "--size", "224", "--runs", str(runs)]
     if train:
         cmd.append("--train")
-    env = {k: v for k, v in os.environ.items() if k not in TUNED_MALLOC_ENV}
-    r = subprocess.run(cmd, capture_output=True, text=True, check=True, env={**env, **TUNED_MALLOC_ENV} if tuned_malloc else env)
+    # PyTorch's CPU tensors come from malloc too: as shipped, or with our settings
+    env = {k: v for k, v in os.environ.items() if k not in MALLOC_ENV}
+    r = subprocess.run(cmd, capture_output=True, text=True, check=True, env={**env, **MALLOC_ENV} if tuned_malloc else env)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 

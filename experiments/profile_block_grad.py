@@ -43,8 +43,7 @@ def part_fn(gd, rest, part: str, C: int):
         if part == "dw":
             return ops.depthwise_1d(x[..., : C // 8], m.mixer.band_w[...], m.mixer.band_w_b[...], axis=2)
         if part == "mlp":
-            h = jax.nn.gelu(ops.pointwise(x, m.fc1[...], m.fc1_b[...]), approximate=False)
-            return ops.pointwise(h, m.fc2[...], m.fc2_b[...])
+            return ops.mlp(x, m.fc1[...], m.fc1_b[...], m.fc2[...], m.fc2_b[...])
         return m.norm(x, True)
 
     return run

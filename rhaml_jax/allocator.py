@@ -17,10 +17,13 @@ import ctypes
 import ctypes.util
 import os
 
-__all__ = ["tune_allocator"]
+__all__ = ["tune_allocator", "MALLOC_ENV"]
 
 # mallopt parameters, glibc's malloc.h
 _M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
+# The same settings as glibc's environment variables, for a child process (a trim threshold
+# beyond any heap: never trim, as mallopt's -1).
+MALLOC_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(2**62)}
 _applied = False
 
 

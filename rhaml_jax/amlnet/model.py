@@ -95,7 +95,7 @@ class AMLNet(nnx.Module):
 
     def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
         h = self.features(images, train, key, impl)
-        act = ops.gelu if impl == "fast" else lambda z: jax.nn.gelu(z, approximate=False)
+        act = ops.gelu if impl == "fast" else ops.gelu_ref
         for fc in self.neck:
             h = act(fc(h))
         return scale_head(self.head(h), self.cfg.task)

@@ -120,9 +120,14 @@ def pointwise_ref(x, w, b=None):
     return out if b is None else out + b
 
 
+def gelu_ref(h):
+    """Exact GELU as jax writes it (through erfc); `gelu` is the fast form."""
+    return jax.nn.gelu(h, approximate=False)
+
+
 def mlp_ref(x, w1, b1, w2, b2):
     """InceptionNeXt's MLP: 1x1 conv, exact (erf) GELU, 1x1 conv, as lax convolutions."""
-    return pointwise_ref(jax.nn.gelu(pointwise_ref(x, w1, b1), approximate=False), w2, b2)
+    return pointwise_ref(gelu_ref(pointwise_ref(x, w1, b1)), w2, b2)
 
 
 def mlp(x, w1, b1, w2, b2):
