@@ -319,3 +319,22 @@ def test_network_image_keeps_bearings():
                                   cv2.resize(img, (160, 128), interpolation=cv2.INTER_AREA))
     with pytest.raises(RhamlError, match="RGB"):
         data.network_image(img[..., 0], DEFAULT_CAMERA.K, hw)
+
+
+def test_image_cache_keeps_images_within_its_budget():
+    from rhaml_jax.data._cache import ImageCache
+
+    loads = []
+
+    def load(i):
+        loads.append(i)
+        return np.full((10, 10, 3), i, np.uint8)  # 300 bytes
+
+    cache = ImageCache(max_bytes=700)
+    for i in (0, 1, 2, 0, 1, 2):
+        np.testing.assert_array_equal(cache.get(i, lambda: load(i)), i)
+    assert loads == [0, 1, 2, 2] and len(cache) == 2 and cache.nbytes == 600  # the third never fits
+    none = ImageCache(max_bytes=0)
+    none.get(0, lambda: load(0))
+    none.get(0, lambda: load(0))
+    assert len(none) == 0 and loads[-2:] == [0, 0]

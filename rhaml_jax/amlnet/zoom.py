@@ -32,6 +32,7 @@ import numpy as np
 
 from rhaml_jax.amlnet.config import AMLNetConfig
 from rhaml_jax.camera import NOMINAL_HEIGHT_M
+from rhaml_jax.data._cache import ImageCache
 from rhaml_jax.errors import RhamlError
 
 __all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "correction_targets", "crop_transform", "zoom_crop",
@@ -129,19 +130,12 @@ class ZoomSource:
             raise RhamlError(f"{root}: split {split!r} has no image with the robot in view")
         self.cfg, self.seed, self.jitter = cfg, seed, jitter
         self.size = draws * len(self.frames)
-        self._cache: dict[int, np.ndarray] = {}
-        self._cache_bytes, self._cached = cache_bytes, 0
+        self._cache = ImageCache(cache_bytes)
 
     def _image(self, i: int) -> np.ndarray:
         from rhaml_jax.data import load_rgb
 
-        img = self._cache.get(i)
-        if img is None:
-            img = load_rgb(self.frames[i].rgb)
-            if self._cached + img.nbytes <= self._cache_bytes:
-                self._cache[i] = img
-                self._cached += img.nbytes
-        return img
+        return self._cache.get(i, lambda: load_rgb(self.frames[i].rgb))
 
     def guess(self, index: int) -> np.ndarray:
         """The jittered estimate (x^, y^) of example `index`."""

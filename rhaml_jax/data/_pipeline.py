@@ -19,6 +19,7 @@ import numpy as np
 from rhaml_jax.camera import DEFAULT_CAMERA, resize_intrinsics
 from rhaml_jax.data._augment import AugmentConfig, augment
 from rhaml_jax.data._bop import read_bop, load_rgb
+from rhaml_jax.data._cache import ImageCache
 from rhaml_jax.data._synth import SynthConfig, training_sample
 from rhaml_jax.errors import RhamlError
 
@@ -74,9 +75,9 @@ class FromDisk:
     """Examples of a BOP data set's `split` at width x height through the network's camera
     (any image size and intrinsics on disk, see `network_image`).
 
-    Images are kept in memory at the network's size once decoded, as long as the whole split
-    fits in `cache_bytes` (18 k images at 128 x 160 take 1.1 GB): decoding and resampling a
-    PNG took 20 ms, about a third of a `cpu` training step's time per image."""
+    Images are kept in memory at the network's size once decoded, while they fit in
+    `cache_bytes` (18 k images at 128 x 160 take 1.1 GB): decoding and resampling a PNG took
+    20 ms, about a third of a `cpu` training step's time per image."""
 
     root: Path
     width: int
@@ -89,16 +90,11 @@ class FromDisk:
         self.size = len(self._frames)
         if self.size == 0:
             raise RhamlError(f"{self.root}: split {self.split!r} has no images")
-        fits = self.size * self.width * self.height * 3 <= self.cache_bytes
-        self._cache: dict[int, np.ndarray] | None = {} if fits else None
+        self._cache = ImageCache(self.cache_bytes)
 
     def example(self, index: int):
         f = self._frames[index]
-        img = None if self._cache is None else self._cache.get(index)
-        if img is None:
-            img = network_image(load_rgb(f.rgb), f.K, (self.height, self.width))
-            if self._cache is not None:
-                self._cache[index] = img
+        img = self._cache.get(index, lambda: network_image(load_rgb(f.rgb), f.K, (self.height, self.width)))
         pose = f.xypsi
         return img, float(f.observed), (np.zeros(3, np.float32) if pose is None else pose.astype(np.float32))
 
