@@ -2,7 +2,7 @@
 paper's metrics (DESIGN.md section 5).
 
   python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml --json OUT [--amlnet CKPT]
-      [--zoom CKPT | --no-zoom]
+      [--zoom CKPT | --no-zoom] [--zoom-mirror]
 
 Prints one JSON line: mean and std of |dx|, |dy| (cm), |dpsi| (deg) and the ATE (eq. 12) over
 the frames with the robot in view, frames per second, and the detection counts over all frames
@@ -49,19 +49,24 @@ class Args:
     """AMLNet's zoom-in stage checkpoint folder (default: the shipped zoom_cpu with the shipped AMLNet)"""
     no_zoom: bool = False
     """report AMLNet alone, without its zoom-in stage"""
+    zoom_mirror: bool = False
+    """also run the zoom-in stage on each crop mirrored left-right and average the two answers
+    (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
     refiner: Path | None = None
     """refiner checkpoint folder (the ir module)"""
     batch: int = 32
     """images per network call"""
 
 
-def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None) -> tuple[np.ndarray, np.ndarray, float]:
+def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None,
+                 zoom_mirror: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """AMLNet on BOP frames, then its zoom-in stage if `zoom` = (net, params, batch_stats) is
-    given: (estimates (N, 3) x, y, psi; o probabilities (N,); seconds per frame)."""
+    given (with `zoom_mirror`, also on the mirrored crops, see `zoom.mirror_average`):
+    (estimates (N, 3) x, y, psi; o probabilities (N,); seconds per frame)."""
     import jax
 
     from rhaml_jax.amlnet import decode
-    from rhaml_jax.amlnet.zoom import apply_correction, zoom_crop
+    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average, zoom_crop
     from rhaml_jax.data import load_rgb, network_image
 
     h, w = net.cfg.input_hw
@@ -84,8 +89,16 @@ def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None) -> tupl
         e = np.stack([out["x"], out["y"], out["psi"]], 1)[: len(chunk)]
         if zoom is not None:
             crops = np.stack([zoom_crop(im, f.K, g[:2], znet.cfg) for im, f, g in zip(full, chunk, e)])
-            z = jax.device_get(zpredict(zparams, zstats, pad(crops.astype(np.float32) / 255.0)))
-            e = apply_correction(e[:, :2], np.stack([z["x"], z["y"], z["psi"]], 1)[: len(chunk)])
+            crops = crops.astype(np.float32) / 255.0
+
+            def correct(c):
+                z = jax.device_get(zpredict(zparams, zstats, pad(c)))
+                return np.stack([z["x"], z["y"], z["psi"]], 1)[: len(chunk)]
+
+            corr = correct(crops)
+            if zoom_mirror:
+                corr = mirror_average(corr, correct(np.ascontiguousarray(crops[:, :, ::-1])))
+            e = apply_correction(e[:, :2], corr)
         if i:  # the first call compiles
             seconds += time.perf_counter() - t
         est.append(e)
@@ -115,7 +128,9 @@ def run(args: Args) -> dict:
     zoom = None if args.no_zoom or zoom_dir is None else load_model(zoom_dir)
     if zoom is not None and zoom[0].cfg.task != "zoom":
         raise RhamlError(f"--zoom {zoom_dir}: holds a {zoom[0].cfg.name} network, not a zoom-in stage")
-    est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch, zoom)
+    if args.zoom_mirror and zoom is None:
+        raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
+    est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch, zoom, args.zoom_mirror)
     observed = np.array([f.observed for f in frames])
     gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames])
     det = prob >= 0.5
@@ -130,7 +145,7 @@ def run(args: Args) -> dict:
                       "fn": int((~det & observed).sum()), "tn": int((~det & ~observed).sum())},
         "detection_accuracy": float((det == observed).mean()),
         "frames": len(frames), "observed_frames": int(observed.sum()), "modules": modules,
-        "zoom": zoom is not None,
+        "zoom": zoom is not None, "zoom_mirror": args.zoom_mirror,
     }
     per_frame = [{"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
                   "est": [float(v) for v in e] if d else None, "gt": [float(v) for v in g] if f.observed else None}

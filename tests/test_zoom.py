@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from rhaml_jax.amlnet import build, decode, get_config, load_model
 from rhaml_jax.amlnet.checkpoint import Checkpoints
 from rhaml_jax.amlnet.config import config_to_dict
-from rhaml_jax.amlnet.zoom import ZoomSource, apply_correction, correction_targets, zoom_crop
+from rhaml_jax.amlnet.zoom import ZoomSource, apply_correction, correction_targets, mirror_average, zoom_crop
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
 from rhaml_jax.data import load_rgb, network_image, read_bop
 from rhaml_jax.data._writer import write_training_set
@@ -33,6 +33,39 @@ def test_correction_round_trip(x, y, psi, gx, gy):
     back = apply_correction([gx, gy], t)
     np.testing.assert_allclose(back[:2], [x, y], atol=1e-9)
     assert abs(np.sin(back[2] - psi)) < 1e-9 and np.cos(back[2] - psi) > 0
+
+
+@settings(max_examples=30, deadline=None)
+@given(t=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.3, 0.3), st.floats(-3.1, 3.1)),
+       noise=st.tuples(st.floats(-0.05, 0.05), st.floats(-0.02, 0.02), st.floats(-0.3, 0.3)))
+def test_mirror_average_of_mirror_images(t, noise):
+    t, noise = np.array(t), np.array(noise)
+    # The mirrored crop's answer for a pose is the mirrored answer: the average is the answer.
+    np.testing.assert_allclose(mirror_average(t, t * [1, -1, -1]), t, atol=1e-12)
+    # Two looks that disagree by +-noise (mirrored) average to the middle.
+    avg = mirror_average(t + noise, (t - noise) * [1, -1, -1])
+    np.testing.assert_allclose(avg[:2], t[:2], atol=1e-12)
+    assert abs(np.sin(avg[2] - t[2])) < 1e-9 and np.cos(avg[2] - t[2]) > 0
+
+
+@pytest.mark.parametrize("psi", [0.4, 1.2, 2.5])
+def test_mirrored_crop_is_the_crop_of_the_mirrored_pose(psi):
+    """What `mirror_average` relies on: for an estimate on the optical axis, the crop mirrored
+    left-right is the crop of the pose reflected about that axis (y, psi -> -y, -psi), here
+    with the built-in robot's rendered mask."""
+    from rhaml_jax import camera, frames, render, robots
+
+    mesh = render.as_mesh(robots.load_robot("pioneer3dx"))
+    K = DEFAULT_CAMERA.K
+
+    def crop(xypsi):
+        T = camera.T_cam_robot(NOMINAL_HEIGHT_M) @ frames.se3_from_xypsi(np.array(xypsi))
+        mask = np.asarray(render.render(mesh, T, K, 640, 480).mask)
+        img = np.repeat((mask * 255).astype(np.uint8)[..., None], 3, -1)
+        return zoom_crop(img, K, [3.0, 0.0], CFG)[..., 0] > 127
+
+    a, b = crop([3.0, 0.05, psi])[:, ::-1], crop([3.0, -0.05, -psi])
+    assert (a & b).sum() / (a | b).sum() > 0.97
 
 
 def _blobs(K, points, W=640, H=480, sigma=2.0):
@@ -136,8 +169,21 @@ def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
     for row, e, o in zip(res["frames"], est, np.asarray(d["o"])):
         if o >= 0.5:
             np.testing.assert_allclose(row["est"], e, atol=1e-4)
+    # --zoom-mirror: the zoom stage also on the mirrored crops, the two averaged
+    main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
+          "--json", str(out), "--batch", "4", "--zoom-mirror"])
+    res = json.loads(out.read_text())
+    assert res["metrics"]["zoom_mirror"] is True
+    dm = decode(z.apply(zp, zs, np.ascontiguousarray(crops[:, :, ::-1])), z.cfg.angle_head)
+    t = mirror_average(np.stack([dz["x"], dz["y"], dz["psi"]], 1), np.stack([dm["x"], dm["y"], dm["psi"]], 1))
+    est = apply_correction(guess, t)
+    for row, e, o in zip(res["frames"], est, np.asarray(d["o"])):
+        if o >= 0.5:
+            np.testing.assert_allclose(row["est"], e, atol=1e-4)
     with pytest.raises(RhamlError, match="not a zoom-in stage"):
         main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
+    with pytest.raises(RhamlError, match="--zoom-mirror"):
+        main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom-mirror"])
 
 
 def test_bad_input_is_named():

@@ -18,7 +18,7 @@ its nominal size, its offset from the centre is b - b^, and its look depends on 
 `apply_correction` turns t back into (x, y, psi).
 
 Host side (NumPy + OpenCV, like the data pipeline): `crop_transform`, `zoom_crop`,
-`correction_targets`, `apply_correction`, and `ZoomSource` (training examples, a pure function
+`correction_targets`, `apply_correction`, `mirror_average` (test-time mirroring), and `ZoomSource` (training examples, a pure function
 of (seed, index)). Pure JAX: the network itself.
 """
 
@@ -35,8 +35,8 @@ from rhaml_jax.camera import NOMINAL_HEIGHT_M
 from rhaml_jax.data._cache import ImageCache
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "correction_targets", "crop_transform", "zoom_crop",
-           "MIN_RANGE_M"]
+__all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "correction_targets", "crop_transform", "mirror_average",
+           "zoom_crop", "MIN_RANGE_M"]
 
 MIN_RANGE_M = 0.5  # estimates nearer than this (or behind the camera) are cropped as if at 0.5 m
 
@@ -100,6 +100,21 @@ def apply_correction(guess_xy, t) -> np.ndarray:
     rg, bg = _range_bearing(guess_xy)
     r, b = rg * np.exp(t[..., 0]), bg + t[..., 1]
     return np.stack([r * np.cos(b), r * np.sin(b), _wrap(bg + t[..., 2])], -1)
+
+
+def mirror_average(t, t_mirrored) -> np.ndarray:
+    """(..., 3) corrections from a crop and from the same crop mirrored left-right, averaged.
+
+    Mirroring the crop about its centre column reflects the scene about the vertical plane
+    through the camera and the estimate (exactly for an estimate on the optical axis, nearly
+    elsewhere), under which log(r / r^) stays and b - b^, psi - b^ change sign. For a
+    left-right symmetric robot the mirrored crop is as likely as the original, so the two
+    answers are two looks at one pose: positions averaged, headings averaged as unit vectors.
+    Measured on the shipped stages (BENCHMARKS.md): every pose metric improves."""
+    t = np.asarray(t, np.float64)
+    tm = np.asarray(t_mirrored, np.float64) * np.array([1.0, -1.0, -1.0])
+    psi = np.arctan2(np.sin(t[..., 2]) + np.sin(tm[..., 2]), np.cos(t[..., 2]) + np.cos(tm[..., 2]))
+    return np.stack([(t[..., 0] + tm[..., 0]) / 2, (t[..., 1] + tm[..., 1]) / 2, psi], -1)
 
 
 @dataclasses.dataclass(frozen=True)
