@@ -107,6 +107,33 @@ def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None,
     return np.concatenate(est), np.concatenate(prob), (seconds / n_timed if n_timed else float("nan"))
 
 
+MAX_MIRROR_SHAPE = 0.02  # of the robot's length
+MAX_MIRROR_COLOUR = 0.05  # of its surface
+
+
+def check_mirror_symmetric(data: Path) -> None:
+    """`--zoom-mirror` averages the pose seen in a crop and in its mirror image: right only for
+    a left-right symmetric robot. Checks the data set's BOP model (RobotModel.mirror_asymmetry)."""
+    import sys
+
+    from rhaml_jax.data import load_bop_model
+    from rhaml_jax.data._bop import MODEL_FILE, OBJ_ID
+
+    path = Path(data) / "models" / MODEL_FILE.format(OBJ_ID)
+    if not path.exists():
+        print(f"rhaml_jax.evaluate: warning: {path} not found: cannot check that the robot is left-right "
+              "symmetric, which --zoom-mirror assumes", file=sys.stderr)
+        return
+    model = load_bop_model(data)
+    shape, colour = model.mirror_asymmetry()
+    length = float(np.ptp(model.vertices, axis=0).max())
+    if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:
+        raise RhamlError(f"--zoom-mirror: the robot model {path} is not left-right symmetric (its mirror image is "
+                         f"{100 * shape:.1f} cm off, {100 * colour:.0f} % of its surface another colour; limits "
+                         f"{100 * MAX_MIRROR_SHAPE:.0f} % of its {100 * length:.0f} cm length and "
+                         f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
+
+
 def run(args: Args) -> dict:
     from rhaml_jax import metrics
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
@@ -128,8 +155,10 @@ def run(args: Args) -> dict:
     zoom = None if args.no_zoom or zoom_dir is None else load_model(zoom_dir)
     if zoom is not None and zoom[0].cfg.task != "zoom":
         raise RhamlError(f"--zoom {zoom_dir}: holds a {zoom[0].cfg.name} network, not a zoom-in stage")
-    if args.zoom_mirror and zoom is None:
-        raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
+    if args.zoom_mirror:
+        if zoom is None:
+            raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
+        check_mirror_symmetric(args.data)
     est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch, zoom, args.zoom_mirror)
     observed = np.array([f.observed for f in frames])
     gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames])

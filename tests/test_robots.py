@@ -116,6 +116,28 @@ def test_sample_surface_is_uniform_by_area():
     assert np.abs(vertex_mean - centroid).max() > 3e-3 * 2, "the test must tell area- from vertex-weighting"
 
 
+def test_mirror_asymmetry_tells_symmetric_robots_from_others():
+    import dataclasses
+
+    m = load_robot("pioneer3dx")
+    shape, colour = m.mirror_asymmetry()
+    assert abs(shape) < 2e-3 and abs(colour) < 0.02  # symmetric: only sampling noise
+    # Origin 3 cm off the symmetry plane: the mirror image is ~6 cm off somewhere.
+    off = dataclasses.replace(m, vertices=m.vertices + np.float32([0.0, 0.03, 0.0]))
+    assert off.mirror_asymmetry()[0] > 0.04
+    # The same shape with its left half painted red.
+    left = m.vertices[m.faces].mean(1)[:, 1] > 0
+    red = dataclasses.replace(m, face_colors=np.where(left[:, None], np.float32([1, 0, 0]), m.face_colors))
+    shape, colour = red.mirror_asymmetry()
+    assert abs(shape) < 2e-3 and colour > 0.3
+
+
+def test_pioneer_urdf_is_mirror_symmetric():
+    urdf = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")))
+    shape, colour = urdf.mirror_asymmetry()
+    assert abs(shape) < 2e-3 and abs(colour) < 0.02
+
+
 def test_simplify_respects_budget_and_keeps_silhouette():
     m = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")))
     s = load_robot(str(shared_path("robots/pioneer3dx/urdf/pioneer3dx.urdf")), max_faces=2000)

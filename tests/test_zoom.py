@@ -184,6 +184,20 @@ def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
         main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
     with pytest.raises(RhamlError, match="--zoom-mirror"):
         main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom-mirror"])
+    # A data set whose robot is not left-right symmetric is refused by name.
+    import dataclasses
+    import shutil
+
+    from rhaml_jax.data._bop import write_dataset_header
+    from rhaml_jax.robots import load_robot
+
+    lopsided = tmp_path / "lopsided"
+    shutil.copytree(bop_set, lopsided)
+    m = load_robot("pioneer3dx")
+    write_dataset_header(lopsided, dataclasses.replace(m, vertices=m.vertices + np.float32([0, 0.05, 0])), DEFAULT_CAMERA)
+    with pytest.raises(RhamlError, match="obj_000001.ply is not left-right symmetric"):
+        main(["--data", str(lopsided), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
+              "--zoom-mirror"])
 
 
 def test_bad_input_is_named():

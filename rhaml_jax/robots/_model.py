@@ -114,6 +114,10 @@ class RobotModel:
 
     def sample_surface(self, n: int, seed: int = 0) -> np.ndarray:
         """(n, 3) float32 points uniformly distributed over the surface (area-weighted)."""
+        return self._sample(n, seed)[0].astype(np.float32)
+
+    def _sample(self, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) float64 area-uniform surface points and (n,) the faces they lie on."""
         rng = np.random.default_rng(seed)
         area = self.face_areas
         if area.sum() <= 0:
@@ -123,7 +127,30 @@ class RobotModel:
         s = np.sqrt(r1)
         a, b, c = 1 - s, s * (1 - r2), s * r2
         tri = self.vertices[self.faces[idx]].astype(np.float64)
-        return (a[:, None] * tri[:, 0] + b[:, None] * tri[:, 1] + c[:, None] * tri[:, 2]).astype(np.float32)
+        return a[:, None] * tri[:, 0] + b[:, None] * tri[:, 1] + c[:, None] * tri[:, 2], idx
+
+    def mirror_asymmetry(self, n: int = 20000, seed: int = 0) -> tuple[float, float]:
+        """How far the model is from its left-right mirror image (y -> -y in the robot frame):
+        (shape in metres, colour as a fraction), both about 0 for a symmetric robot.
+
+        From two independent area-uniform draws P, Q of n surface points: shape = the 99th
+        percentile of the distance from a mirrored point of P to the nearest point of Q, minus
+        the same without mirroring (what sampling alone gives); colour = the fraction of
+        mirrored points whose nearest point of Q has another face colour (any channel off by
+        more than 0.1), minus the same without mirroring. Test-time mirroring of the zoom stage
+        (`evaluate --zoom-mirror`) assumes both are small."""
+        from scipy.spatial import cKDTree
+
+        (p, fp), (q, fq) = self._sample(n, seed), self._sample(n, seed + 1)
+        tree = cKDTree(q)
+        d0, i0 = tree.query(p)
+        d1, i1 = tree.query(p * np.array([1.0, -1.0, 1.0]))
+        cp, cq = self.face_colors[fp], self.face_colors[fq]
+
+        def recoloured(i):
+            return float((np.abs(cp - cq[i]).max(1) > 0.1).mean())
+
+        return float(np.quantile(d1, 0.99) - np.quantile(d0, 0.99)), recoloured(i1) - recoloured(i0)
 
     def to_trimesh(self):
         """A trimesh.Trimesh with the face colours (for export, ray casting and viewing)."""
