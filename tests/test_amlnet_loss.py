@@ -63,6 +63,11 @@ def test_loss_weights_and_wrapping():
     assert float(parts["loss_p"]) == pytest.approx(want_p, rel=1e-5)
     assert float(parts["loss_psi"]) == pytest.approx(0.2**2, rel=1e-5)
     assert float(loss) == pytest.approx(np.log(2) + 2 * want_p, rel=1e-5)
+    # w_xy weighs the x and y terms (out is 0.5 off in x, 0 in y; then 1 off in y)
+    _, parts = amlnet_loss(out, np.ones(1), pose, "psi", w_psi=3.0, w_p=2.0, w_xy=(10.0, 100.0))
+    assert float(parts["loss_p"]) == pytest.approx(10 * 0.25 + 3 * 0.2**2, rel=1e-5)
+    _, parts = amlnet_loss(out.at[0, 2].set(2.0), np.ones(1), pose, "psi", w_psi=3.0, w_xy=(10.0, 100.0))
+    assert float(parts["loss_p"]) == pytest.approx(10 * 0.25 + 100 + 3 * 0.2**2, rel=1e-5)
 
 
 def test_front_back_ambiguity_keeps_the_axis():

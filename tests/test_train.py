@@ -130,8 +130,29 @@ def test_resume_with_another_config_or_settings_fails(reference_run):
         train_amlnet(replace(CFG, name="micro2", dims=(8, 8)), TC, out, *_sources(), resume=True, progress=False)
     with pytest.raises(RhamlError, match="training settings differ"):
         train_amlnet(CFG, replace(TC, lr=0.5), out, *_sources(), resume=True, progress=False)
+    with pytest.raises(RhamlError, match="w_xy"):
+        train_amlnet(CFG, replace(TC, w_xy=(2.0, 1.0)), out, *_sources(), resume=True, progress=False)
     with pytest.raises(RhamlError, match="already holds a checkpoint"):
         train_amlnet(CFG, TC, out, *_sources(), progress=False)
+
+
+def test_resume_accepts_a_checkpoint_from_before_a_new_setting(reference_run, tmp_path):
+    """A setting added later (here w_xy) is absent from older checkpoints' metadata: it counts
+    as its default, so such runs still resume."""
+    import json
+    import shutil
+
+    out = tmp_path / "old"
+    shutil.copytree(reference_run[0], out)
+    metas = sorted(out.glob("checkpoints/*/meta/metadata"))
+    assert metas
+    for m in metas:
+        meta = json.loads(m.read_text())
+        del meta["train_config"]["w_xy"]
+        m.write_text(json.dumps(meta))
+    train_amlnet(CFG, TC, out, *_sources(), resume=True, progress=False, num_devices=1, log=lambda s: None)
+    with pytest.raises(RhamlError, match="w_xy"):
+        train_amlnet(CFG, replace(TC, w_xy=(3.0, 1.0)), out, *_sources(), resume=True, progress=False)
 
 
 def test_bad_batches_are_named(tmp_path):

@@ -2,7 +2,7 @@
 
 L_A = L_o + w_p L_p
 L_o = BCE(o, sigmoid(logit))                              over all N samples
-L_p = sum_i o_i [(x_i - x^_i)^2 + (y_i - y^_i)^2 + w_psi d_i^2] / max(sum_i o_i, 1)
+L_p = sum_i o_i [w_x (x_i - x^_i)^2 + w_y (y_i - y^_i)^2 + w_psi d_i^2] / max(sum_i o_i, 1)
 
 Negatives (o_i = 0, no robot in view) carry no pose, so they are masked out of L_p and L_p is
 the mean over the positives of the batch (eq. 4 with N = the number of positives).  d_i is the
@@ -18,7 +18,10 @@ shows, and the heading is lost entirely (measured: the shipped flatten/cossin ne
 outputs had median length 0.05).  The doubled angle is the same for psi and psi + pi, so the
 axis is learned whatever the ambiguity, and the (cos psi, sin psi) outputs only have to lean
 towards the right end.
-Defaults w_psi = 3, w_p = 2 (DESIGN.md section 6).
+Defaults w_psi = 3, w_p = 2 (DESIGN.md section 6), w_x = w_y = 1 (the paper's eq. 4). The zoom
+stage's x, y are its log-range and bearing corrections, whose spreads are 0.12 and 0.044 rad:
+with unit weights they count for little against the heading term, and `zoom_cpu` weighs them
+by their inverse variances (BENCHMARKS.md has the ablation).
 """
 
 from __future__ import annotations
@@ -48,12 +51,14 @@ def decode(out, angle_head: str = "psi") -> dict:
     return {"o": jax.nn.sigmoid(out[:, 0]), "x": out[:, 1], "y": out[:, 2], "psi": psi}
 
 
-def amlnet_loss(out, observed, pose, angle_head: str = "psi", w_psi: float = 3.0, w_p: float = 2.0):
+def amlnet_loss(out, observed, pose, angle_head: str = "psi", w_psi: float = 3.0, w_p: float = 2.0,
+                w_xy: tuple[float, float] = (1.0, 1.0)):
     """Returns (L_A, {"loss", "loss_o", "loss_p", "loss_psi"}); out: raw head, observed: (B,) in {0, 1},
-    pose: (B, 3) = (x, y, psi) (ignored where observed = 0)."""
+    pose: (B, 3) = (x, y, psi) (ignored where observed = 0); w_xy weighs the x and y terms of
+    L_p (the paper: 1, 1)."""
     logit = out[:, 0]
     loss_o = jnp.mean(jax.nn.softplus(logit) - observed * logit)
-    err = jnp.square(out[:, 1] - pose[:, 0]) + jnp.square(out[:, 2] - pose[:, 1])
+    err = w_xy[0] * jnp.square(out[:, 1] - pose[:, 0]) + w_xy[1] * jnp.square(out[:, 2] - pose[:, 1])
     if angle_head in ("cossin", "axis"):
         ang = jnp.square(out[:, 3] - jnp.cos(pose[:, 2])) + jnp.square(out[:, 4] - jnp.sin(pose[:, 2]))
         if angle_head == "axis":

@@ -44,13 +44,13 @@ def make_optimizer(lr: float = 1e-3, steps: int = 1000, weight_decay: float = 0.
 
 
 def make_steps(net: Net, tx: optax.GradientTransformation, w_psi: float = 3.0, w_p: float = 2.0,
-               shardings: tuple | None = None) -> Steps:
+               shardings: tuple | None = None, w_xy: tuple[float, float] = (1.0, 1.0)) -> Steps:
     """`shardings` = (replicated, batch-sharded) NamedShardings for data parallelism."""
     head = net.cfg.angle_head
 
     def loss_fn(params, stats, images, observed, pose, key):
         out, new_stats = net.train_apply(params, stats, images, key)
-        loss, parts = amlnet_loss(out, observed, pose, head, w_psi, w_p)
+        loss, parts = amlnet_loss(out, observed, pose, head, w_psi, w_p, w_xy)
         return loss, (parts, new_stats)
 
     def grad_step(params, stats, images, observed, pose, key):

@@ -60,6 +60,8 @@ class TrainConfig:
     """weight of the heading term in L_p"""
     w_p: float = 2.0
     """weight of L_p in L_A = L_o + w_p L_p"""
+    w_xy: tuple[float, float] = (1.0, 1.0)
+    """weights of the x and y terms in L_p (the zoom stage: its log-range and bearing corrections)"""
     log_every: int = 10
     """steps between metrics.jsonl lines"""
     val_every: int = 500
@@ -82,14 +84,14 @@ def _devices(num_devices: int | None):
 
 
 @functools.lru_cache(maxsize=4)
-def _compiled(cfg: ModelConfig, lr, steps, weight_decay, warmup, clip, w_psi, w_p, devices):
+def _compiled(cfg: ModelConfig, lr, steps, weight_decay, warmup, clip, w_psi, w_p, w_xy, devices):
     """Jitted steps for one (model, optimizer, device set), reused by later runs in the same
     process (XLA's CPU compiler is slow: minutes for the paper network)."""
     mesh = Mesh(np.array(devices), ("data",))
     rep, bat = NamedSharding(mesh, P()), NamedSharding(mesh, P("data"))
     net = build(cfg, abstract=True)
     tx = make_optimizer(lr, steps, weight_decay, warmup, clip)
-    return tx, make_schedule(lr, steps, warmup), make_steps(net, tx, w_psi, w_p, shardings=(rep, bat)), rep, bat
+    return tx, make_schedule(lr, steps, warmup), make_steps(net, tx, w_psi, w_p, shardings=(rep, bat), w_xy=w_xy), rep, bat
 
 
 def _read_metrics(path: Path, upto: int) -> list[dict]:
@@ -160,19 +162,22 @@ def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source:
     try:
         net = build(cfg, jax.random.key(tc.seed))
         tx, sched, steps, rep, bat = _compiled(cfg, tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip,
-                                                    tc.w_psi, tc.w_p, devices)
+                                                    tc.w_psi, tc.w_p, tuple(tc.w_xy), devices)
         params, stats = net.params, net.batch_stats
         opt_state = tx.init(params)
         start = 0
         latest = ck.latest_step()
-        meta_base = {"model_config": config_to_dict(cfg), "train_config": asdict(tc), "data": data_label}
+        settings = json.loads(json.dumps(asdict(tc)))  # as stored (tuples become lists)
+        meta_base = {"model_config": config_to_dict(cfg), "train_config": settings, "data": data_label}
         if latest is not None and not resume:
             raise RhamlError(f"--out {out}: already holds a checkpoint (step {latest}); pass --resume or choose another folder")
         if resume and latest is not None:
             meta = ck.meta(latest)
             check_config(meta, cfg, f"--resume {out}")
-            if meta.get("train_config") != asdict(tc):
-                diff = {k: (meta["train_config"].get(k), v) for k, v in asdict(tc).items() if meta["train_config"].get(k) != v}
+            # settings added since the checkpoint was written count as their defaults
+            stored = json.loads(json.dumps(asdict(TrainConfig()))) | meta.get("train_config", {})
+            if stored != settings:
+                diff = {k: (stored.get(k), v) for k, v in settings.items() if stored.get(k) != v}
                 raise RhamlError(f"--resume {out}: training settings differ from the checkpoint's (stored, given): {diff}")
             state = ck.restore(latest, {"params": params, "batch_stats": stats, "opt_state": opt_state})
             params, stats, opt_state = state["params"], state["batch_stats"], state["opt_state"]
