@@ -18,8 +18,8 @@ its nominal size, its offset from the centre is b - b^, and its look depends on 
 `apply_correction` turns t back into (x, y, psi).
 
 Host side (NumPy + OpenCV, like the data pipeline): `crop_transform`, `zoom_crop`,
-`correction_targets`, `apply_correction`, `mirror_average` (test-time mirroring), and `ZoomSource` (training examples, a pure function
-of (seed, index)). Pure JAX: the network itself.
+`correction_targets`, `apply_correction`, `mirror_average` (test-time mirroring), and
+`ZoomSource` (training examples, a pure function of (seed, index)). Pure JAX: the network itself.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def mirror_average(t, t_mirrored) -> np.ndarray:
     elsewhere), under which log(r / r^) stays and b - b^, psi - b^ change sign. For a
     left-right symmetric robot the mirrored crop is as likely as the original, so the two
     answers are two looks at one pose: positions averaged, headings averaged as unit vectors.
-    Measured on the shipped stages (BENCHMARKS.md): every pose metric improves."""
+    Measured with the shipped stages (BENCHMARKS.md): ATE 0.53 -> 0.45 on the circle."""
     t = np.asarray(t, np.float64)
     tm = np.asarray(t_mirrored, np.float64) * np.array([1.0, -1.0, -1.0])
     psi = np.arctan2(np.sin(t[..., 2]) + np.sin(tm[..., 2]), np.cos(t[..., 2]) + np.cos(tm[..., 2]))
