@@ -192,7 +192,7 @@ def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source:
         last = {"step": start, "loss": float("nan"), "val": {}}
         end = tc.steps if stop_at is None else min(tc.steps, stop_at)
         bar = _progress(progress)
-        task = bar.add_task("amlnet", total=tc.steps, completed=start, loss=float("nan")) if bar else None
+        task = bar.add_task(cfg.name, total=tc.steps, completed=start, loss=float("nan")) if bar else None
         if bar:
             bar.start()
         t_last, n_last = time.perf_counter(), start
