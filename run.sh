@@ -18,7 +18,7 @@ case "$what" in
     # complete) and run the shipped AMLNet on it, printing the paper's metrics.
     echo "rhaml_jax: the demo is not built yet; running the most complete job: AMLNet and its zoom-in stage (IML) on the circle scenario in out/circle" >&2
     .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle
-    # --zoom-mirror: the built-in robot is left-right symmetric (BENCHMARKS.md: ATE 0.53 -> 0.45)
+    # --zoom-mirror: the built-in robot is left-right symmetric (BENCHMARKS.md: ATE 0.31 -> 0.28)
     exec .venv/bin/python -m rhaml_jax.evaluate --data out/circle --modules iml --zoom-mirror --json out/circle_iml.json "$@"
     ;;
   test)

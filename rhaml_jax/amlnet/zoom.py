@@ -110,7 +110,7 @@ def mirror_average(t, t_mirrored) -> np.ndarray:
     elsewhere), under which log(r / r^) stays and b - b^, psi - b^ change sign. For a
     left-right symmetric robot the mirrored crop is as likely as the original, so the two
     answers are two looks at one pose: positions averaged, headings averaged as unit vectors.
-    Measured with the shipped stages (BENCHMARKS.md): ATE 0.53 -> 0.45 on the circle."""
+    Measured with the shipped stages (BENCHMARKS.md): ATE 0.31 -> 0.28 on the circle."""
     t = np.asarray(t, np.float64)
     tm = np.asarray(t_mirrored, np.float64) * np.array([1.0, -1.0, -1.0])
     psi = np.arctan2(np.sin(t[..., 2]) + np.sin(tm[..., 2]), np.cos(t[..., 2]) + np.cos(tm[..., 2]))
