@@ -126,7 +126,7 @@ def check_mirror_symmetric(data: Path) -> None:
         return
     model = load_bop_model(data)
     shape, colour = model.mirror_asymmetry()
-    length = float(np.ptp(model.vertices, axis=0).max())
+    length = float(model.extents.max())
     if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:
         raise RhamlError(f"--zoom-mirror: the robot model {path} is not left-right symmetric (its mirror image is "
                          f"{100 * shape:.1f} cm off, {100 * colour:.0f} % of its surface another colour; limits "
