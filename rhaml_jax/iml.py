@@ -57,12 +57,26 @@ class IMLParams(NamedTuple):
 
 
 def _heading(out, angle_head: str):
-    """psi and the length of the predicted (cos, sin) vector (1 for a psi head)."""
+    """Decoded outputs and how sure the heading's front/back sense is, in [0, 1]: the length of
+    the (cos, sin) vector for a "cossin" head, |lean| (the direction outputs projected on the
+    chosen axis, `amlnet.decode`) for an "axis" head, 1 for a "psi" head (no such signal)."""
     from rhaml_jax.amlnet import decode
 
     d = decode(out, angle_head)
-    norm = jnp.hypot(out[:, 3], out[:, 4]) if angle_head == "cossin" else jnp.ones_like(d["psi"])
-    return d, norm
+    if angle_head == "cossin":
+        sure = jnp.hypot(out[:, 3], out[:, 4])
+    elif angle_head == "axis":
+        a = 0.5 * jnp.arctan2(out[:, 6], out[:, 5])
+        sure = jnp.abs(out[:, 3] * jnp.cos(a) + out[:, 4] * jnp.sin(a))
+    else:
+        sure = jnp.ones_like(d["psi"])
+    return d, jnp.clip(sure, 0.0, 1.0)
+
+
+def _as_8bit(x):
+    """Rounded to whole 8-bit levels, as the host pipeline's OpenCV images are (training saw
+    those), with a straight-through gradient (identity) so that derivatives still pass."""
+    return x + jax.lax.stop_gradient(jnp.clip(jnp.round(x), 0.0, 255.0) - x)
 
 
 def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
@@ -77,7 +91,7 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     with jax.ensure_compile_time_eval():  # a constant of the model, not a traced value
         net_K = jnp.asarray(DEFAULT_CAMERA.resized(w, h).K, jnp.float32)
     boxes = jax.vmap(lambda k: crop.network_box(k, (W, H), net_K, (w, h)))(K)
-    x = jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes) / 255.0
+    x = _as_8bit(jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes)) / 255.0
     out = net.apply(*params.amlnet, x)
     d, _ = _heading(out, net.cfg.angle_head)
     xypsi = jnp.stack([d["x"], d["y"], d["psi"]], -1)
@@ -86,7 +100,7 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
         z = model.zoom
         S = z.cfg.input_hw[0]
         zb = zoom_box(K, xypsi[:, :2], z.cfg)
-        crops = jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb) / 255.0
+        crops = _as_8bit(jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb)) / 255.0
 
         def correct(c):
             zd, norm = _heading(z.apply(*params.zoom, c), z.cfg.angle_head)
@@ -98,10 +112,11 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
             t = mirror_average(t, tm)
             norm = 0.5 * (norm + norm_m)
         xypsi = apply_correction(xypsi[:, :2], t)
-        # A (cos, sin) regressor torn between a heading and its opposite answers with a short
-        # vector (their mean is near zero): the shorter, the likelier a flip. Not calibrated
-        # (BENCHMARKS.md measures how well it ranks flips); 0 for a unit vector, 0.5 at length 0.
-        flip = 0.5 * (1.0 - jnp.clip(norm, 0.0, 1.0))
+        # A regressor torn between a heading and its opposite answers with a short direction
+        # vector (their mean is near zero): the shorter, the likelier a flip. A ranking, not a
+        # calibrated probability (BENCHMARKS.md measures how well it ranks flips): 0 for a
+        # unit vector, 0.5 (no information) at length 0.
+        flip = 0.5 * (1.0 - norm)
     return Estimate(xypsi, d["o"], flip, jnp.zeros((B, 2), xypsi.dtype))
 
 
@@ -112,12 +127,9 @@ MAX_MIRROR_SHAPE = 0.02  # of the robot's length
 MAX_MIRROR_COLOUR = 0.05  # of its surface
 
 
-def check_mirror_symmetric(model_path: Path) -> None:
-    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a BOP model
-    (models/obj_000001.ply) that is not (RobotModel.mirror_asymmetry)."""
-    from rhaml_jax.robots import load_robot
-
-    model = load_robot(str(model_path))
+def check_mirror_symmetric(model, model_path) -> None:
+    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a RobotModel (read
+    from `model_path`) that is not (RobotModel.mirror_asymmetry)."""
     shape, colour = model.mirror_asymmetry()
     length = float(model.extents.max())
     if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:

@@ -7,14 +7,14 @@
 - `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
 """
 
-from rhaml_jax.data._bop import BopFrame, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
+from rhaml_jax.data._bop import BopFrame, bop_model_path, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
 from rhaml_jax.data._synth import Sample, SynthConfig, sample_rng, scenario_frame, training_sample
 from rhaml_jax.data._trajectories import Room, circle, noisy_odometry, rendezvous, sine
 from rhaml_jax.data._tum import read_tum, write_tum
 from rhaml_jax.data._writer import write_scenario, write_training_set
 
 __all__ = [
-    "BopFrame", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
+    "BopFrame", "bop_model_path", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
     "noisy_odometry", "read_bop", "read_tum", "rendezvous", "sample_rng", "scenario_frame",
     "scene_folders", "sine", "training_sample", "write_scenario", "write_training_set", "write_tum",
 ]
