@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -29,7 +28,7 @@ import tyro
 from rhaml_jax.allocator import tune_allocator
 from rhaml_jax.errors import RhamlError, run_cli
 
-__all__ = ["Args", "main", "run", "score"]
+__all__ = ["Args", "frame_rows", "main", "run", "score"]
 
 
 @dataclass(frozen=True)
@@ -127,50 +126,44 @@ def _load(args: Args, modules):
 
 
 def run(args: Args) -> dict:
-    import jax
-
     from rhaml_jax import pipeline
     from rhaml_jax.data import read_bop
-    from rhaml_jax.sequence import group_scenes, load_scene
+    from rhaml_jax.sequence import group_scenes, run_scenes
 
     modules = pipeline.parse_modules(args.modules)
     if args.batch < 1:
         raise RhamlError(f"--batch {args.batch}: must be positive")
     frames = read_bop(args.data, args.split, args.scene)
     model, params = _load(args, modules)
-    scenes = list(group_scenes(frames).values())
-    length = max(len(s) for s in scenes)  # one compiled shape for every scene
-    rows, est, called, observed, gt = [], [], [], [], []
-    compiled, compile_s, seconds = None, 0.0, 0.0
-    for scene in scenes:
-        data = load_scene(scene, need_odometry="pgo" in modules, length=length)
-        if compiled is None:
-            t = time.perf_counter()
-            compiled = pipeline.run_jit.lower(model, params, data.seq).compile()
-            compile_s = time.perf_counter() - t
-        t = time.perf_counter()
-        res = jax.device_get(compiled(params, data.seq))
-        seconds += time.perf_counter() - t
-        n = len(scene)
-        e, det = np.asarray(res.xypsi)[:n], np.asarray(res.detected)[:n]
-        shown = np.ones(n, bool) if "pgo" in modules else det  # the pose graph places B at every frame
-        for i, f in enumerate(scene):
-            row = {"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
-                   "est": [float(v) for v in e[i]] if shown[i] else None,
-                   "gt": [float(v) for v in data.gt[i]] if f.observed else None,
-                   "o": float(res.iml.o[i]), "detected": bool(det[i]), "iml_est": [float(v) for v in res.iml.xypsi[i]]}
-            if res.fusion is not None:
-                row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
-            rows.append(row)
-        est.append(e), called.append(det), observed.append(data.observed[:n]), gt.append(data.gt[:n])
-    m = score(np.concatenate(est), np.concatenate(called), np.concatenate(observed), np.concatenate(gt))
+    runs, compile_s, seconds = run_scenes(model, params, list(group_scenes(frames).values()))
+    m = score(np.concatenate([r.result.xypsi for r in runs]), np.concatenate([r.result.detected for r in runs]),
+              np.concatenate([r.data.observed for r in runs]), np.concatenate([r.data.gt for r in runs]))
     m |= {"fps": len(frames) / seconds if seconds > 0 else None, "compile_seconds": round(compile_s, 2),
           "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
-          "scenes": len(scenes)}
+          "scenes": len(runs)}
+    rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows))}
     return {"metrics": m, "frames": rows}
+
+
+def frame_rows(run, fused: bool) -> list[dict]:
+    """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
+    and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    res, data = run.result, run.data
+    rows = []
+    for i, f in enumerate(data.frames):
+        shown = fused or res.detected[i]  # the pose graph places the robot at every frame
+        row = {"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
+               "est": [float(v) for v in res.xypsi[i]] if shown else None,
+               "gt": [float(v) for v in data.gt[i]] if f.observed else None,
+               "o": float(res.iml.o[i]), "detected": bool(res.detected[i]),
+               "iml_est": [float(v) for v in res.iml.xypsi[i]]}
+        if res.fusion is not None:
+            row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
+        rows.append(row)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -17,7 +17,7 @@ from rhaml_jax.data import BopFrame, load_rgb, read_tum
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.pipeline import Sequence
 
-__all__ = ["SceneData", "load_scene", "group_scenes"]
+__all__ = ["SceneData", "SceneRun", "load_scene", "group_scenes", "run_scenes"]
 
 
 class SceneData(NamedTuple):
@@ -79,3 +79,45 @@ def load_scene(frames: list[BopFrame], need_odometry: bool = True, length: int |
     observed = np.array([f.observed for f in frames] + [False] * pad)
     gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames] + [np.zeros(3)] * pad)
     return SceneData(seq, list(frames), gt, observed)
+
+
+class SceneRun(NamedTuple):
+    data: SceneData  # the scene as loaded (padding dropped from `result`)
+    result: object  # pipeline.PipelineResult as NumPy arrays, first len(data.frames) rows
+
+
+def _first(res, n: int):
+    """The per-frame fields of a PipelineResult cut to the scene's n frames (padding dropped)."""
+    cut = lambda tree: None if tree is None else type(tree)(*(np.asarray(a)[:n] for a in tree))  # noqa: E731
+    fusion = res.fusion
+    if fusion is not None:
+        per_row = ("relative", "inlier", "flipped", "weights", "deleted", "consensus")
+        fusion = fusion._replace(**{k: np.asarray(getattr(fusion, k))[:n] for k in per_row})
+    return res._replace(iml=cut(res.iml), ir=cut(res.ir), detected=np.asarray(res.detected)[:n],
+                        xypsi=np.asarray(res.xypsi)[:n], fusion=fusion)
+
+
+def run_scenes(model, params, scenes: list[list[BopFrame]]) -> tuple[list[SceneRun], float, float]:
+    """Every scene through the pipeline, padded to one length so that it compiles once:
+    (runs, compile seconds, pipeline seconds of the compiled calls)."""
+    import time
+
+    import jax
+
+    from rhaml_jax import pipeline
+
+    need_odometry = "pgo" in model.config.modules
+    length = max(len(s) for s in scenes)
+    compiled, compile_s, seconds, runs = None, 0.0, 0.0, []
+    for scene in scenes:
+        data = load_scene(scene, need_odometry=need_odometry, length=length)
+        if compiled is None:
+            t = time.perf_counter()
+            compiled = pipeline.run_jit.lower(model, params, data.seq).compile()
+            compile_s = time.perf_counter() - t
+        t = time.perf_counter()
+        res = jax.block_until_ready(compiled(params, data.seq))
+        seconds += time.perf_counter() - t
+        n = len(scene)
+        runs.append(SceneRun(data._replace(gt=data.gt[:n], observed=data.observed[:n]), _first(jax.device_get(res), n)))
+    return runs, compile_s, seconds
