@@ -31,6 +31,7 @@ from rhaml_jax.data._cache import ImageCache  # noqa: E402
 
 __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]
+
 from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, check_heldout,  # noqa: E402
                                         sample_heldout_look, sample_look)
 from rhaml_jax.data._writer import write_heldout  # noqa: E402

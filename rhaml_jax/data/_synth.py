@@ -18,8 +18,8 @@ import numpy as np
 from rhaml_jax.camera import NOMINAL_HEIGHT_M, Camera, T_cam_robot
 from rhaml_jax.data import _appearance as _ap
 from rhaml_jax.data._backdrop import Light, RoomLook, photo, room_albedo, room_image, room_surfaces, sample_light, sample_room
-from rhaml_jax.planar import between
 from rhaml_jax.frames import se3_from_xypsi
+from rhaml_jax.planar import between
 from rhaml_jax.render import Mesh, render
 
 MIN_VISIBLE_PX = 12  # fewer visible robot pixels than this count as "not in view"
