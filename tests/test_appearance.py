@@ -172,3 +172,30 @@ def test_heldout_benchmark_layout(tmp_path):
     assert counts["random"] == [True] * 3
     assert {f.split for f in data.read_bop(tmp_path / "h" / "random", None)} == {"test"}
     assert (tmp_path / "h" / "circle" / "test" / "000000" / "observed_odometry.txt").exists()
+
+
+def test_robot_like_distractors_have_their_documented_sizes():
+    from rhaml_jax.data._synth import distractor_mesh_v2
+
+    colors = np.zeros((4, 2, 3))
+    seen = 0
+    for i in range(40):
+        rng = np.random.default_rng(i)
+        v, f, c = distractor_mesh_v2(rng, 4, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0, CFG.cart_length_m)
+        assert v.shape == distractor_mesh_v2(np.random.default_rng(99), 0, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0,
+                                             CFG.cart_length_m)[0].shape  # one shape: one compilation
+        used = v[v[:, 0] > -100]
+        assert np.array_equal(v, distractor_mesh_v2(np.random.default_rng(i), 4, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0,
+                                                    CFG.cart_length_m)[0])  # a pure function of the generator
+        per_slot = len(v) // 4
+        for k in range(4):
+            s = v[k * per_slot:(k + 1) * per_slot]
+            s = s[s[:, 0] > -100]
+            if len(s):
+                seen += 1
+                assert s[:, 2].min() >= -1e-6  # on the floor
+                d = np.linalg.norm(s[:, None, :2] - s[None, :, :2], axis=-1).max()  # footprint diameter, any yaw
+                # body length L in cart_length_m; wheels reach 1.3 L x 1.2 L at most
+                assert CFG.cart_length_m[0] - 1e-6 <= d <= np.hypot(1.3, 1.2) * CFG.cart_length_m[1] + 1e-6
+        assert len(used)
+    assert seen > 100

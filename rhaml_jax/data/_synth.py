@@ -256,7 +256,8 @@ def distractor_mesh_v2(rng: np.random.Generator, count: int, slots: int, keep_ou
         length = rng.uniform(*cart_length)
         width, wheel_r = length * rng.uniform(0.5, 1.0), length * rng.uniform(0.1, 0.3)
         body_z0, body_h = wheel_r * rng.uniform(0.4, 1.3), length * rng.uniform(0.2, 0.6)
-        reach = max(size * 1.5 * np.sqrt(2.0), 0.5 * np.hypot(length, width + 0.2 * length))
+        # bounding radius of the footprint: box, or cart with its wheels (x: axles at +-0.35 L, y: 0.1 L each side)
+        reach = max(size * 1.5 * np.sqrt(2.0), 0.5 * np.hypot(0.7 * length + 2 * wheel_r, width + 0.2 * length))
         for _ in range(50):
             cx, cy = rng.uniform(x0, x1), rng.uniform(y0, y1)
             if keep_out_xy is None or not _may_occlude((cx, cy), reach, keep_out_xy, keep_out_r):
