@@ -90,7 +90,7 @@ class AppearanceConfig:
     hue_exclude_deg: Range = (155.0, 205.0)
     exclude_min_saturation: float = 0.2
     lighting: tuple[str, ...] = TRAINING_LIGHTING
-    ambient: Range = (0.1, 0.7)
+    ambient: Range = (0.2, 0.8)
     sun: Range = (0.0, 1.0)
     sun_elevation_rad: Range = (0.15, 1.45)
     flash_prob: float = 0.5
