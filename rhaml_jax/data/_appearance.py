@@ -141,6 +141,13 @@ class AppearanceConfig:
             raise RhamlError(f"AppearanceConfig.lighting: {list(self.lighting)}: training samples {' and '.join(TRAINING_LIGHTING)} only")
 
 
+# The held-out benchmark's camera: the training effects, milder (each range inside training's).
+with deferred_checks():  # checked at the end of the module, where the checks are defined
+    MILD_CAMERA = AppearanceConfig(exposure_stops=(-0.3, 0.3), gamma=(0.95, 1.05), vignette=(0.0, 0.2), defocus_prob=0.2,
+                                   defocus_px=(0.3, 0.8), motion_prob=0.1, motion_px=(1.0, 3.0), noise=(0.0, 0.01),
+                                   jpeg_prob=0.3, jpeg_quality=(75.0, 95.0))
+
+
 @dataclasses.dataclass(frozen=True)
 class HeldoutConfig:
     """The held-out appearance benchmark's settings (see the module docstring), each outside
@@ -150,7 +157,9 @@ class HeldoutConfig:
       from below, blended by the surface normal's up component; both coloured with saturation
       light_saturation. part_hue_deg, part_saturation, part_value: every robot part's colour.
     texture_kinds: room surfaces ("photo" means one of texture_photos); backdrop_photos:
-    photograph backdrops. Camera effects are drawn from the training ranges (not held out).
+    photograph backdrops. camera: the camera effects' ranges (not held out: `MILD_CAMERA`, a
+    typical camera inside the training ranges, so that a scenario's single draw of its camera
+    does not decide the benchmark).
     """
 
     lighting: str = "hemisphere"
@@ -163,6 +172,7 @@ class HeldoutConfig:
     texture_kinds: tuple[str, ...] = ("voronoi", "photo")
     texture_photos: tuple[str, ...] = ("stereo_motorcycle",)
     backdrop_photos: tuple[str, ...] = ("stereo_motorcycle",)
+    camera: AppearanceConfig = MILD_CAMERA
 
     def __post_init__(self):
         if not _DEFERRED[0]:
@@ -172,6 +182,7 @@ class HeldoutConfig:
         """RhamlError (one line naming the field) for an empty, inverted or out-of-bounds setting."""
         if self.lighting != "hemisphere" and self.lighting not in TRAINING_LIGHTING:
             raise RhamlError(f"HeldoutConfig.lighting: unknown lighting model {self.lighting!r} (hemisphere, {', '.join(TRAINING_LIGHTING)})")
+        self.camera.validate()
         _check_fields(self, {"sky": (0, None), "ground": (0, None), "light_saturation": (0, 1), "part_hue_deg": (0, 360),
                              "part_saturation": (0, 1), "part_value": (0, 1)})
         unknown = [k for k in self.texture_kinds if k not in _KNOWN_KINDS]
@@ -378,10 +389,9 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
     )
 
 
-def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors: np.ndarray, slots: int = 4,
-                        camera_cfg: AppearanceConfig = AppearanceConfig()) -> Look:
+def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors: np.ndarray, slots: int = 4) -> Look:
     """The held-out look of image (or scenario) `index` of benchmark `seed` (camera effects from
-    camera_cfg's training ranges). A pure function of its arguments."""
+    held.camera's ranges). A pure function of its arguments."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _STREAM_HELDOUT]))
     G = len(base_colors)
     part = np.stack([rng.uniform(*held.part_hue_deg, G), rng.uniform(*held.part_saturation, G), rng.uniform(*held.part_value, G)], 1)
@@ -393,7 +403,7 @@ def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors:
         part_hsv=part, lighting=held.lighting, ambient_rgb=zero, sun_rgb=zero, sun_dir=np.array([0.0, 0.0, 1.0]), flash_rgb=zero,
         flash_offset=zero, flash_falloff=0.0, specular=0.0, shininess=1.0, sky_rgb=sky, ground_rgb=ground,
         shadow_strength=0.0, shadow_blur_px=1.0, contact_strength=float(rng.uniform(0.2, 0.5)),
-        **_camera(rng, camera_cfg),
+        **_camera(rng, held.camera),
         textures=tuple(sample_texture(rng, held.texture_kinds, held.texture_photos) for _ in range(6)),
         backdrop_photo=held.backdrop_photos[rng.integers(len(held.backdrop_photos))],
         distractor_hsv=np.stack([rgb_to_hsv(rng.uniform(0.05, 0.95, (2, 3))) for _ in range(slots)]),
@@ -511,3 +521,6 @@ def world_from_optical(camera_height: float, observer_xypsi=(0.0, 0.0, 0.0)):
     c, s = math.cos(psi), math.sin(psi)
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return Rz @ R_ROBOT_OPTICAL, np.array([x, y, camera_height])
+
+
+MILD_CAMERA.validate()

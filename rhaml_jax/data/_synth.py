@@ -334,7 +334,7 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
     if heldout is None:
         look = _ap.sample_look(acfg, seed, index, groups, slots)
     else:
-        look = _ap.sample_heldout_look(heldout, seed, index, groups, slots, acfg)
+        look = _ap.sample_heldout_look(heldout, seed, index, groups, slots)
     robot_mesh = Mesh(model_mesh.vertices, model_mesh.faces, jnp.asarray(look.part_rgb[group_of_face], jnp.float32))
     T_cam = T_cam_robot(h)
     cam_pose = _ap.world_from_optical(h)
