@@ -94,6 +94,11 @@ def test_heldout_settings_never_occur_in_training():
     assert all(lk.lighting == HELD.lighting and np.all(_in_heldout_band(lk.part_hsv, HELD)) for lk in held)
     assert all(_inside(_light(lk.sky_rgb)[1], HELD.light_saturation) for lk in held)
     assert all(t.kind in HELD.texture_kinds and (t.kind != "photo" or t.photo in HELD.texture_photos) for lk in held for t in lk.textures)
+    # Only the stated factors are held out: the camera's ranges lie inside training's, and its draws inside them.
+    for f in ("exposure_stops", "white_balance", "gamma", "vignette", "defocus_px", "motion_px", "noise", "jpeg_quality"):
+        assert _inside(getattr(HELD.camera, f)[0], getattr(CFG, f)) and _inside(getattr(HELD.camera, f)[1], getattr(CFG, f)), f
+    assert all(_inside(lk.exposure_stops, HELD.camera.exposure_stops) and _inside(lk.gamma, HELD.camera.gamma) for lk in held)
+    assert all(lk.defocus_px == 0 or _inside(lk.defocus_px, HELD.camera.defocus_px) for lk in held)
     # ... and no training draw has any of them: lighting model, light saturation, part colouring,
     # texture family, photographs (walls or backdrops), robot-like distractors' colours.
     for lk in train:

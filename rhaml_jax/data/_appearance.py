@@ -12,6 +12,8 @@ place; `HeldoutConfig` lists the held-out benchmark's settings, chosen OUTSIDE t
 - texture family: rooms of Voronoi cells (`voronoi`) and the `stereo_motorcycle` photograph, a
   texture family and a photograph training never samples (for walls or as a backdrop).
 
+The held-out camera effects are training's, milder (`MILD_CAMERA`): they are not held out.
+
 Everything sampled here is a pure function of (seed, index): `sample_look` draws from its own
 stream, independent of the geometry's, so the factors of an image can be listed without
 rendering it (what the tests do). Host-side NumPy / OpenCV only.
