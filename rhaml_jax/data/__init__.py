@@ -5,6 +5,10 @@
 - `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets.
 - `read_tum`, `write_tum`: trajectory files.
 - `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
+- `AppearanceConfig`: the v2 appearance randomisation's factors and ranges (`SynthConfig.appearance`;
+  None gives the v1 data); `HeldoutConfig`, `check_heldout`, `write_heldout`: the held-out
+  appearance benchmark, outside every training range; `sample_look`, `sample_heldout_look`: one
+  image's look (a pure function of (seed, index)).
 """
 
 from rhaml_jax.data._bop import BopFrame, bop_model_path, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
@@ -27,3 +31,9 @@ from rhaml_jax.data._cache import ImageCache  # noqa: E402
 
 __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]
+
+from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, check_heldout,  # noqa: E402
+                                        sample_heldout_look, sample_look)
+from rhaml_jax.data._writer import write_heldout  # noqa: E402
+
+__all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "sample_heldout_look", "sample_look", "write_heldout"]
