@@ -25,3 +25,7 @@ from rhaml_jax.data._pipeline import (Batch, FromDisk, OnTheFly, amlnet_batch_so
 
 __all__ += ["AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]
+
+from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
+
+__all__ += ["write_sequence"]
