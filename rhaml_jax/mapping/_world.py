@@ -104,3 +104,21 @@ def true_map(field: Field, resolution: float, frame=(0.0, 0.0, 0.0), extent=None
     world = planar.compose(np.broadcast_to(frame, p.shape), p)[..., :2]
     occ = field.occupied(world).reshape(H, supersample, W, supersample).any((1, 3))
     return OccupancyMap(occ.astype(np.float32), resolution, (x0, y0, 0.0))
+
+
+def map_scores(m: OccupancyMap, field: Field, frame=(0.0, 0.0, 0.0), supersample: int = 3) -> dict:
+    """A map (in the frame whose pose in the field is `frame`) against the truth, on the cells the
+    map knows: occupied-cell IoU, the fraction of truly free cells it calls occupied, and the
+    fraction of the field's area it knows (coverage)."""
+    H, W = m.shape
+    if abs(m.origin[2]) > 1e-12:
+        raise ValueError("map_scores: maps with a rotated origin are not supported")
+    x0, y0 = m.origin[0], m.origin[1]
+    truth = true_map(field, m.resolution, frame, (x0, y0, x0 + W * m.resolution, y0 + H * m.resolution), supersample)
+    t = truth.occupied[:H, :W]
+    known = m.known
+    occ = m.occupied
+    inter, union = (occ & t & known).sum(), ((occ | t) & known).sum()
+    free_true = known & ~t
+    return {"iou": float(inter / max(union, 1)), "false_occupied": float((occ & free_true).sum() / max(free_true.sum(), 1)),
+            "known_m2": float(known.sum() * m.resolution**2)}
