@@ -26,10 +26,10 @@ class LidarConfig:
     """A planar lidar on the robot's base (beams evenly over 360 deg) and its inverse sensor model."""
 
     beams: int = 360
-    max_range: float = 5.0  # m; a beam that hits nothing reports max_range (no hit)
+    max_range: float = 3.5  # m; a beam that hits nothing reports max_range (no hit)
     range_sigma: float = 0.01  # m, Gaussian range noise
-    l_occ: float = 0.85  # log-odds added at a beam's end cell
-    l_free: float = -0.4  # log-odds added along a beam, before its end cell
+    l_occ: float = 1.2  # log-odds added at a beam's end cell
+    l_free: float = -0.6  # log-odds added along a beam, before its end cell
     l_min: float = -4.0  # clamp (keeps the grid able to change its mind)
     l_max: float = 4.0
 

@@ -273,7 +273,7 @@ def write_map(yaml_path: Path, m: OccupancyMap, image_name: str | None = None) -
     write_pgm(yaml_path.parent / image_name, img[::-1], f"rhaml_jax map; {m.resolution:g} m/pixel")
     x, y, yaw = m.origin
     text = (f"image: {image_name}\nmode: trinary\nresolution: {m.resolution!r}\norigin: [{x!r}, {y!r}, {yaw!r}]\n"
-            f"negate: 0\noccupied_thresh: {m.occupied_thresh!r}\nfree_thresh: {m.free_thresh!r}\n")
+            f"negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")  # map_saver's: 205 (unknown) reads back unknown
     tmp = yaml_path.with_name(yaml_path.name + ".tmp")
     tmp.write_text(text)
     os.replace(tmp, yaml_path)
