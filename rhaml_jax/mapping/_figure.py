@@ -34,7 +34,12 @@ def plot_merged(path: Path, m: OccupancyMap, trajectories: dict[str, np.ndarray]
         g = map_to_grid(m.origin, np.asarray(p, np.float64)[..., :2])
         return g + np.array([x0, y0])
 
-    fig, ax = plt.subplots(figsize=(6.4, 6.4 * H / max(W, 1) + 0.6))
+    if m.known.any():
+        r, c = np.nonzero(m.known)
+        H_, W_ = r.max() - r.min() + 20, c.max() - c.min() + 20
+    else:
+        H_, W_ = H, W
+    fig, ax = plt.subplots(figsize=(6.4, min(6.4 * H_ / max(W_, 1), 9.0) + 0.6))
     ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", extent=(x0, x0 + W * res, y0, y0 + H * res),
               interpolation="nearest")
     for k, (label, tr) in enumerate((trajectories or {}).items()):
@@ -47,6 +52,10 @@ def plot_merged(path: Path, m: OccupancyMap, trajectories: dict[str, np.ndarray]
         ax.arrow(p[0], p[1], 0.5 * np.cos(psi), 0.5 * np.sin(psi), width=0.04, color=COLOURS[k % len(COLOURS)],
                  length_includes_head=True)
         ax.annotate(label, p, textcoords="offset points", xytext=(4, -10), fontsize=8, color=COLOURS[k % len(COLOURS)])
+    if m.known.any():  # frame the known part
+        r, c = np.nonzero(m.known)
+        ax.set_xlim(x0 + (c.min() - 10) * res, x0 + (c.max() + 10) * res)
+        ax.set_ylim(y0 + (r.min() - 10) * res, y0 + (r.max() + 10) * res)
     if trajectories:
         ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("x (m)" if m.origin[2] == 0 else "x (m, grid axes)")
