@@ -56,6 +56,18 @@ def test_negate_trinary_scale_raw(tmp_path):
     np.testing.assert_allclose(raw.occupancy, [[0.0, 0.5, 1.0, np.nan]])
 
 
+def test_nav2_saver_map_keeps_unknown(tmp_path):
+    """nav2's map_saver (and slam_toolbox) write unknown as 205 beside free_thresh 0.25, which nav2's
+    loader reads as free; an image of only the saver's three levels keeps 205 unknown."""
+    (tmp_path / "s.pgm").write_bytes(b"P5\n# CREATOR: map_saver 0.050 m/pix\n3 1\n255\n" + bytes([0, 205, 254]))
+    m = read_map(_yaml(tmp_path / "s.yaml", "s.pgm", mode="trinary", free_thresh=0.25))
+    np.testing.assert_array_equal(m.occupancy, np.array([[1.0, np.nan, 0.0]], np.float32))
+    # a grey map (Cartographer-like) with the same thresholds is read as nav2 reads it: 205 is free
+    (tmp_path / "c.pgm").write_bytes(b"P5\n3 1\n255\n" + bytes([0, 205, 128]))
+    m = read_map(_yaml(tmp_path / "c.yaml", "c.pgm", free_thresh=0.25))
+    np.testing.assert_array_equal(m.occupancy, np.array([[1.0, 0.0, np.nan]], np.float32))
+
+
 def test_scale_mode_transparent_pixels_are_unknown(tmp_path):
     bgra = np.zeros((1, 3, 4), np.uint8)
     bgra[..., :3] = 254
@@ -212,3 +224,28 @@ def test_log_odds_update_matches_a_per_beam_loop():
                 ref[c] = np.clip(ref[c] + (cfg.l_occ if c in hit else cfg.l_free), cfg.l_min, cfg.l_max)
     np.testing.assert_allclose(np.asarray(lo), ref, atol=1e-5)
     assert np.array_equal(np.asarray(seen), ref != 0)
+
+
+@settings(max_examples=10, deadline=None)
+@given(x=st.floats(-5, 5), y=st.floats(-5, 5), psi=st.floats(-3.14, 3.14), seed=st.integers(0, 1000))
+def test_every_placed_occupied_cell_comes_from_an_occupied_cell_of_b(x, y, psi, seed):
+    """Nearest placement: the centre of every occupied merged cell, taken back into B's frame by
+    T^-1, lies inside an occupied cell of B; and B's occupied area is kept (to within cell
+    quantisation)."""
+    from rhaml_jax import planar
+    from rhaml_jax.mapping import transform_points
+
+    rng = np.random.default_rng(seed)
+    occ = np.zeros((30, 30), np.float32)
+    occ[rng.integers(0, 30, 12), rng.integers(0, 30, 12)] = 1.0
+    b = OccupancyMap(occ, 0.1, (-1.0, 0.5, 0.0))
+    a = OccupancyMap(np.full((3, 3), np.nan, np.float32), 0.1)
+    T = np.array([x, y, psi])
+    m, _ = merge_maps(a, b, T)
+    c = m.cell_centres()[m.occupied]  # (K, 2) in A's frame
+    back = transform_points(planar.inverse(T), c)
+    g = (back - np.array(b.origin[:2])) / b.resolution  # continuous cell coordinates in B
+    i, j = np.floor(g[:, 1]).astype(int), np.floor(g[:, 0]).astype(int)
+    assert np.all(occ[i, j] == 1.0)
+    n_b = int(occ.sum())
+    assert 0.5 * n_b <= len(c) <= 2.0 * n_b

@@ -9,7 +9,9 @@ p < free_thresh free, in between unknown (trinary) or (p - free_thresh) / (occup
 free_thresh) (scale, as nav2; a pixel that is not opaque is unknown); raw reads v as the OccupancyGrid value itself (0..100, anything else unknown).
 This reads what map_server's and nav2's map_saver, slam_toolbox (nav2's saver) and
 Cartographer's ROS export (continuous grey levels, unknown 128, comments in the PGM header)
-write. Writing is map_saver's trinary image (occupied 0, free 254, unknown 205).
+write; one deviation from nav2's loader: in an image holding only map_saver's three grey levels,
+205 is unknown even when the YAML says free_thresh 0.25 (nav2's own saver writes that pair, and
+its loader then reads unknown as free). Writing is map_saver's trinary image (occupied 0, free 254, unknown 205).
 """
 
 from __future__ import annotations
@@ -256,6 +258,11 @@ def read_map(yaml_path: Path) -> OccupancyMap:
         # nav2's scale mode: between the thresholds, 0..1 across [free_thresh, occupied_thresh]
         between = (p - free_th) / max(occ_th - free_th, 1e-12) if mode == "scale" else np.nan
         occ = np.where(p > occ_th, 1.0, np.where(p < free_th, 0.0, between))
+        if mode == "trinary" and not negate and free_th > 50 / 255 and set(np.unique(grey).tolist()) <= {0.0, 205.0, 254.0}:
+            # A map_saver trinary image (only its three grey levels): 205 is what it wrote for
+            # unknown. nav2's saver (slam_toolbox's too) writes free_thresh 0.25 beside it, with
+            # which nav2's loader reads 205 (p = 0.196) as free (slam_toolbox issue #587).
+            occ = np.where(grey == 205.0, np.nan, occ)
         if mode == "scale" and alpha is not None:
             occ = np.where(alpha < 255, np.nan, occ)  # nav2: a pixel that is not opaque is unknown
     return OccupancyMap(occ.astype(np.float32), res, tuple(origin), occ_th, free_th)
