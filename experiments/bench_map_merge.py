@@ -4,7 +4,7 @@ multirobot_map_merge) against A_0 T B_0 from the rendezvous (the paper's eq. 13)
   PYTHONPATH=. python experiments/bench_map_merge.py --worlds 20 --out bench_map_merge.json [--iml-worlds 20]
 
 Worlds 0..N/2-1 use the default exploration (A explores x < 5.5 m, B x > 4.5 m, lidar 3.5 m);
-worlds N/2..N-1 are "barely overlapping": A explores x < 3.5 m, B x > 6.5 m with a 2.5 m lidar,
+worlds N/2..N-1 are "barely overlapping": A explores x < 2.5 m, B x > 7.5 m with a 1.5 m lidar,
 so their maps share little more than the meeting area. Per world:
 - baseline: ORB features on the two grids (as map_saver images), brute-force Hamming matching
   with Lowe's ratio test, RANSAC on a rotation + translation (+ scale, which must come out ~1)
@@ -88,7 +88,7 @@ def errors(est, truth):
 def world_config(index: int, worlds: int) -> ExploreConfig:
     if index < worlds // 2:
         return ExploreConfig()
-    return ExploreConfig(overlap=-3.0, lidar=LidarConfig(max_range=2.5))
+    return ExploreConfig(overlap=-5.0, lidar=LidarConfig(max_range=1.5))
 
 
 def run_world(index: int, worlds: int, iml: bool, workdir: Path) -> dict:
