@@ -37,3 +37,7 @@ from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, c
 from rhaml_jax.data._writer import write_heldout  # noqa: E402
 
 __all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "sample_heldout_look", "sample_look", "write_heldout"]
+
+from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
+
+__all__ += ["write_sequence"]

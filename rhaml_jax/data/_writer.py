@@ -227,29 +227,41 @@ def scenario_poses(name: str, frames: int, seed: int):
     raise RhamlError(f"--scenario: unknown scenario {name!r} (expected circle, sine or rendezvous)")
 
 
-def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
-                   chunk: int = 25, max_faces: int | None = None, heldout=None) -> dict:
-    """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4);
-    with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
+def write_sequence(out: Path, scenes, bounds, robot: str, camera: Camera, seed: int, workers: int = 2, chunk: int = 25,
+                   max_faces: int | None = None, timestamps=None, label: str = "rendering", heldout=None,
+                   look_index: int = 0) -> int:
+    """Renders scenes given by their poses into a BOP data set (split `test`) with the four TUM files
+    per scene; returns the number of frames with the robot in view.
+
+    scenes: [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odometry (N, 3),
+    observed odometry (N, 3))], truth in a common world frame whose room has `bounds`
+    (x0, x1, y0, y1) and its look drawn from `seed` (and `look_index`); `timestamps` (N,) s
+    (default 10 per second); with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
     from rhaml_jax.robots import load_robot
 
     out = Path(out)
     write_dataset_header(out, load_robot(robot, max_faces), camera)
-    scenes, bounds = scenario_poses(name, frames, seed)
     items = []
     for scene_id, observer, observed, odo_observer, odo_observed in scenes:
         folder = out / "test" / f"{scene_id:06d}"
         folder.mkdir(parents=True, exist_ok=True)
         # Static observer scenarios: the world is the observer's frame (identity on every line).
-        write_tum(folder / "observer_groundtruth.txt", observer)
-        write_tum(folder / "observed_groundtruth.txt", observed)
-        write_tum(folder / "observer_odometry.txt", odo_observer)
-        write_tum(folder / "observed_odometry.txt", odo_observed)
-        items += [(i, str(folder), tuple(observer[i]), tuple(observed[i])) for i in range(frames)]
-    items = [(i, folder, i, obs, tgt) for i, folder, obs, tgt in items]  # (key, folder, im_id, ...)
-    seen = _run(items, lambda chunk_items: ScenarioJob(robot, max_faces, camera, seed, bounds, chunk_items, heldout,
-                                                           ("circle", "sine", "rendezvous").index(name)), _run_scenario_job,
-                workers, robot, max_faces, f"rendering {name}", chunk)
+        write_tum(folder / "observer_groundtruth.txt", observer, timestamps)
+        write_tum(folder / "observed_groundtruth.txt", observed, timestamps)
+        write_tum(folder / "observer_odometry.txt", odo_observer, timestamps)
+        write_tum(folder / "observed_odometry.txt", odo_observed, timestamps)
+        items += [(i, str(folder), i, tuple(observer[i]), tuple(observed[i])) for i in range(len(observer))]
+    return _run(items, lambda chunk_items: ScenarioJob(robot, max_faces, camera, seed, tuple(bounds), chunk_items, heldout,
+                                                       look_index), _run_scenario_job, workers, robot, max_faces, label, chunk)
+
+
+def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
+                   chunk: int = 25, max_faces: int | None = None, heldout=None) -> dict:
+    """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4);
+    with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
+    scenes, bounds = scenario_poses(name, frames, seed)
+    seen = write_sequence(out, scenes, bounds, robot, camera, seed, workers, chunk, max_faces, label=f"rendering {name}",
+                          heldout=heldout, look_index=("circle", "sine", "rendezvous").index(name))
     return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
 
 

@@ -1,0 +1,155 @@
+"""A rendezvous sequence folder -> A_0 T B_0, the pose of B's map origin in A's (the paper's eq. 13).
+
+A rendezvous sequence is what `generate --scenario rendezvous` and `explore` write: a BOP data
+set with two scenes in split `test`, scene 0 seen by robot A's camera (A observes B) and scene 1
+by B's, each with the four TUM files (DESIGN.md section 4), line i = image i in both scenes.
+Each robot's odometry is in its own odometry frame, which is the frame its map is drawn in
+(the map origin is where the odometry started), so B's odometry frame in A's odometry frame,
+which the pose graph returns, is the transform that places B's map in A's.
+
+`estimate_a0_T_b0` is the one step to swap when the full pipeline lands: today its observations
+come from the IML (AMLNet + its zoom-in stage, the shipped checkpoints, `evaluate.evaluate_iml`)
+or, for tests and to separate the localisation's error from the fusion's, from the ground
+truth plus Gaussian noise; the pose graph (`pgo.rhaml_pgo`) fuses them with both odometries.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from rhaml_jax.errors import RhamlError
+
+__all__ = ["RendezvousEstimate", "estimate_a0_T_b0", "read_sequence", "Sequence"]
+
+Observations = Literal["iml", "truth"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Sequence:
+    """The two scenes of a rendezvous sequence, aligned frame by frame."""
+
+    frames_a: list  # BopFrame of A's camera (A observes B), image i = frame i
+    frames_b: list  # BopFrame of B's camera
+    odom_a: np.ndarray  # (N, 3) A's odometry in its own frame
+    odom_b: np.ndarray  # (N, 3) B's odometry in its own frame
+    truth_a: np.ndarray  # (N, 3) true poses (a common world frame)
+    truth_b: np.ndarray
+    timestamps: np.ndarray  # (N,) s
+
+
+def read_sequence(root: Path) -> Sequence:
+    """Reads and checks a rendezvous sequence folder (two scenes, four TUM files each)."""
+    from rhaml_jax.data import read_bop, read_tum, scene_folders
+
+    root = Path(root)
+    scenes = scene_folders(root, "test") if (root / "test").is_dir() else scene_folders(root)
+    if len(scenes) != 2:
+        raise RhamlError(f"{root}: a rendezvous sequence has two scenes (one per robot's camera), found {len(scenes)}")
+    (split_a, fa), (split_b, fb) = scenes
+    frames_a = read_bop(root, split_a, int(fa.name))
+    frames_b = read_bop(root, split_b, int(fb.name))
+    if len(frames_a) != len(frames_b):
+        raise RhamlError(f"{root}: the two scenes have {len(frames_a)} and {len(frames_b)} images; a rendezvous "
+                         "sequence has one image per frame from each robot's camera")
+    tum = {}
+    for name in ("observer_odometry", "observed_odometry", "observer_groundtruth", "observed_groundtruth"):
+        for tag, folder in (("a", fa), ("b", fb)):
+            t, x = read_tum(folder / f"{name}.txt")
+            if len(x) != len(frames_a):
+                raise RhamlError(f"{folder / (name + '.txt')}: {len(x)} lines for {len(frames_a)} images (line i = image i)")
+            tum[name, tag] = (t, x)
+    odom_a, odom_b = tum["observer_odometry", "a"][1], tum["observer_odometry", "b"][1]
+    if not np.allclose(tum["observed_odometry", "a"][1], odom_b, atol=1e-6):
+        raise RhamlError(f"{fa / 'observed_odometry.txt'} differs from {fb / 'observer_odometry.txt'}: "
+                         "the two scenes are not one rendezvous (B's odometry must be the same in both)")
+    return Sequence(frames_a, frames_b, odom_a, odom_b, tum["observer_groundtruth", "a"][1],
+                    tum["observed_groundtruth", "a"][1], tum["observer_odometry", "a"][0])
+
+
+@dataclasses.dataclass(frozen=True)
+class RendezvousEstimate:
+    a0_T_b0: np.ndarray  # (3,) x, y, psi: B's map (odometry) origin in A's
+    used: tuple[tuple[str, int], ...]  # ("A" | "B" = whose camera, image id) of each observation kept by the graph
+    rejected: tuple[tuple[str, int], ...]  # detections the graph's erroneous-node deletion dropped
+    observations: np.ndarray  # (K, 3) observed robot in the observer's frame, time order
+    a_observes: np.ndarray  # (K,) bool
+    source: str  # "iml" or "truth+noise(...)"
+    frames: int  # frames in the sequence
+
+
+def _iml_observations(seq: Sequence, root: Path, min_probability: float, zoom_mirror: bool):
+    from rhaml_jax.amlnet import load_model, shipped_checkpoint
+    from rhaml_jax.evaluate import check_mirror_symmetric, evaluate_iml
+
+    net, params, stats = load_model(shipped_checkpoint("amlnet_cpu"))
+    zoom = load_model(shipped_checkpoint("zoom_cpu"))
+    if zoom_mirror:
+        try:
+            check_mirror_symmetric(root)
+        except RhamlError:
+            zoom_mirror = False  # not a left-right symmetric robot: no mirrored crops
+    frames = list(seq.frames_a) + list(seq.frames_b)
+    est, prob, _ = evaluate_iml(frames, net, params, stats, batch=min(32, len(frames)), zoom=zoom, zoom_mirror=zoom_mirror)
+    n = len(seq.frames_a)
+    return est[:n], prob[:n] >= min_probability, est[n:], prob[n:] >= min_probability
+
+
+def _truth_observations(seq: Sequence, sigma_xy: float, sigma_psi: float, seed: int):
+    rng = np.random.default_rng(seed)
+    out = []
+    for frames in (seq.frames_a, seq.frames_b):
+        seen = np.array([f.observed for f in frames])
+        gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames])
+        noise = rng.standard_normal(gt.shape) * np.array([sigma_xy, sigma_xy, sigma_psi])
+        out += [gt + noise, seen]
+    return out
+
+
+def estimate_a0_T_b0(sequence: Path, observations: Observations = "iml", *, sigma_xy: float = 0.05,
+                     sigma_psi_deg: float = 2.0, seed: int = 0, min_probability: float = 0.5,
+                     zoom_mirror: bool = True) -> RendezvousEstimate:
+    """A_0 T B_0 from a rendezvous sequence folder: every frame in which one robot detects the
+    other is a mutual observation, fused with both odometries by Algorithm 1 (`pgo.rhaml_pgo`).
+
+    observations: "iml" (the shipped AMLNet + zoom-in stage on the images; a detection is
+    o >= min_probability) or "truth" (the BOP ground truth of every frame with the robot in view,
+    plus Gaussian noise sigma_xy m, sigma_psi_deg deg; deterministic in `seed`)."""
+    import jax.numpy as jnp
+
+    from rhaml_jax import planar
+    from rhaml_jax.pgo import Rendezvous, observation_from_xy_yaw_rp, rhaml_pgo_jit
+
+    root = Path(sequence)
+    seq = read_sequence(root)
+    if observations == "iml":
+        est_a, det_a, est_b, det_b = _iml_observations(seq, root, min_probability, zoom_mirror)
+        source = "iml"
+    elif observations == "truth":
+        est_a, det_a, est_b, det_b = _truth_observations(seq, sigma_xy, np.radians(sigma_psi_deg), seed)
+        source = f"truth+noise(sigma {100 * sigma_xy:g} cm, {sigma_psi_deg:g} deg)"
+    else:
+        raise RhamlError(f"observations: expected iml or truth, got {observations!r}")
+    rows, obs, a_obs, who = [], [], [], []
+    for i in range(len(seq.frames_a)):  # time order; at one frame A's observation, then B's
+        for tag, est, det, im in (("A", est_a, det_a, seq.frames_a), ("B", est_b, det_b, seq.frames_b)):
+            if det[i]:
+                rows.append(i)
+                obs.append(est[i])
+                a_obs.append(tag == "A")
+                who.append((tag, int(im[i].im_id)))
+    if not rows:
+        what = "no image in which the IML detects a robot" if observations == "iml" else "no image with a robot in view"
+        raise RhamlError(f"{root}: no rendezvous frames ({what} among {len(seq.frames_a)} frames per camera)")
+    idx = np.array([rows[0]] + rows)  # row 0: the graph's A_0, B_0 at the first rendezvous frame
+    rv = Rendezvous(jnp.asarray(seq.odom_a[idx]), jnp.asarray(seq.odom_b[idx]),
+                    observation_from_xy_yaw_rp(jnp.asarray(np.array(obs))), jnp.asarray(np.array(a_obs)))
+    res = rhaml_pgo_jit(rv)
+    keep = np.asarray(res.keep)
+    T = np.asarray(res.odom_a_T_odom_b, np.float64)
+    T = np.array([T[0], T[1], float(planar.wrap_angle(T[2]))])
+    return RendezvousEstimate(T, tuple(w for w, k in zip(who, keep) if k), tuple(w for w, k in zip(who, keep) if not k),
+                              np.array(obs), np.array(a_obs), source, len(seq.frames_a))
