@@ -61,16 +61,28 @@ def _combination_available(mods) -> str | None:
     return None
 
 
-def _models(mods, iml_model, iml_params, data_dir: Path):
-    from rhaml_jax import pipeline
+def run_combination(mods, iml_model, iml_params, scenes: list, data_dir: Path, fusion=None) -> tuple[dict, list]:
+    """One module combination over BOP scenes (lists of frames) with the given IML (and the
+    shipped refiner for "ir"): (the paper's metrics over all scenes + fps, the SceneRuns)."""
+    from rhaml_jax import pgo, pipeline
+    from rhaml_jax.evaluate import score
+    from rhaml_jax.planar import wrap_angle
+    from rhaml_jax.sequence import run_scenes
 
     refiner = refiner_params = None
     if "ir" in mods:
         from rhaml_jax import refine
 
         refiner, refiner_params = refine.load_stage(None, data_dir)
-    cfg = pipeline.PipelineConfig(modules=mods)
-    return pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params)
+    cfg = pipeline.PipelineConfig(modules=tuple(mods), fusion=fusion or pgo.FusionConfig())
+    model = pipeline.PipelineModel(iml_model, cfg, refiner)
+    runs, compile_s, seconds = run_scenes(model, pipeline.PipelineParams(iml_params, refiner_params), scenes)
+    cat = lambda f: np.concatenate([f(r) for r in runs])  # noqa: E731
+    m = score(cat(lambda r: r.result.xypsi), cat(lambda r: r.result.detected), cat(lambda r: r.data.observed),
+              cat(lambda r: r.data.gt))
+    dpsi = np.abs(wrap_angle(cat(lambda r: r.result.xypsi[:, 2]) - cat(lambda r: r.data.gt[:, 2])))
+    m["flips"] = int((dpsi[cat(lambda r: r.data.observed)] > np.pi / 2).sum())  # front/back confusions
+    return m | {"fps": sum(len(r.data.frames) for r in runs) / seconds, "compile_seconds": round(compile_s, 1)}, runs
 
 
 def _table(rows: dict) -> str:
@@ -141,8 +153,7 @@ def run(args: Args) -> dict:
     from rhaml_jax import iml
     from rhaml_jax.camera import DEFAULT_CAMERA
     from rhaml_jax.data import bop_model_path, load_bop_model, read_bop, write_scenario
-    from rhaml_jax.evaluate import score
-    from rhaml_jax.sequence import group_scenes, run_scenes
+    from rhaml_jax.sequence import group_scenes
 
     if args.frames < 2:
         raise RhamlError(f"--frames must be at least 2, got {args.frames}")
@@ -167,13 +178,9 @@ def run(args: Args) -> dict:
             console.print(f"[yellow]demo[/]: {key.upper().replace(',', '+')} skipped: {why}")
             continue
         console.print(f"[bold]demo[/]: running {key.upper().replace(',', '+')} (compiles once, then both scenarios)")
-        model, params = _models(mods, iml_model, iml_params, first)
-        runs, compile_s, seconds = run_scenes(model, params, [s for name in SCENARIOS for s in scenes[name]])
+        rows[key], runs = run_combination(mods, iml_model, iml_params, [s for name in SCENARIOS for s in scenes[name]],
+                                          first)
         runs_by_combo[key] = dict(zip(SCENARIOS, runs))
-        cat = lambda f: np.concatenate([f(r) for r in runs])  # noqa: E731
-        m = score(cat(lambda r: r.result.xypsi), cat(lambda r: r.result.detected), cat(lambda r: r.data.observed),
-                  cat(lambda r: r.data.gt))
-        rows[key] = m | {"fps": sum(len(r.data.frames) for r in runs) / seconds, "compile_seconds": round(compile_s, 1)}
     table = _table(rows)
     print(table)
     figures = _plots(args.out, runs_by_combo)
