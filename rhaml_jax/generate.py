@@ -27,7 +27,7 @@ from typing import Literal
 import tyro
 
 from rhaml_jax.camera import DEFAULT_CAMERA, Camera
-from rhaml_jax.data._appearance import AppearanceConfig, HeldoutConfig
+from rhaml_jax.data import AppearanceConfig, HeldoutConfig
 from rhaml_jax.errors import RhamlError, run_cli
 
 
@@ -66,9 +66,7 @@ class Args:
 
 
 def generate(args: Args) -> dict:
-    from rhaml_jax.data._appearance import check_heldout
-    from rhaml_jax.data._synth import SynthConfig
-    from rhaml_jax.data._writer import write_heldout, write_scenario, write_training_set
+    from rhaml_jax.data import SynthConfig, check_heldout, write_heldout, write_scenario, write_training_set
 
     num = args.num if args.num is not None else 500 if args.heldout else 70000
     negatives = args.negatives if args.negatives is not None else 100 if args.heldout else 10000
@@ -104,7 +102,7 @@ def generate(args: Args) -> dict:
 
 
 def main() -> None:
-    from rhaml_jax.data._appearance import deferred_checks
+    from rhaml_jax.data import deferred_checks
 
     with deferred_checks():  # range errors come from generate() as one line, not tyro's box
         args = tyro.cli(Args, description=__doc__)

@@ -33,10 +33,10 @@ __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTh
             "network_image"]
 
 from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, check_heldout,  # noqa: E402
-                                        sample_heldout_look, sample_look)
+                                        deferred_checks, sample_heldout_look, sample_look)
 from rhaml_jax.data._writer import write_heldout  # noqa: E402
 
-__all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "sample_heldout_look", "sample_look", "write_heldout"]
+__all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "write_heldout"]
 
 from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
 

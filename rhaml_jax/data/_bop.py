@@ -312,7 +312,7 @@ def bop_model_path(root: Path, obj_id: int = OBJ_ID) -> Path:
 def load_bop_model(root: Path, obj_id: int = OBJ_ID):
     """The data set's model (BOP: millimetres) as a RobotModel in metres; checks the units."""
     from rhaml_jax.robots import RobotModel
-    from rhaml_jax.robots._meshio import load_mesh_parts
+    from rhaml_jax.robots import load_mesh_parts
 
     path = bop_model_path(root, obj_id)
     parts = load_mesh_parts(path)
