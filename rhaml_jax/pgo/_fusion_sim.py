@@ -74,13 +74,15 @@ def _from_origin(odom):
 
 
 def simulate_static_observer(truth: np.ndarray, seed: int, sigma=ISSUE_SIGMA, flip_fraction: float = 0.0,
-                             gross_fraction: float = 0.0) -> FusionSequence:
-    """truth (N, 3): B's path in the (static) observer's frame."""
+                             gross_fraction: float = 0.0, trans_frac: float = 0.02,
+                             deg_per_m: float = 0.5) -> FusionSequence:
+    """truth (N, 3): B's path in the (static) observer's frame; B's odometry noise
+    `trans_frac`, `deg_per_m` (DESIGN.md section 3's by default)."""
     from ..data import noisy_odometry
 
     rng = np.random.default_rng([seed, 1])
     N = truth.shape[0]
-    odom_b = _from_origin(noisy_odometry(truth, seed))
+    odom_b = _from_origin(noisy_odometry(truth, seed * 2 + 1, trans_frac, deg_per_m))  # seed as generate's
     odom_a = np.zeros((N, 3))
     valid = np.ones(N, bool)
     meas, flipped, gross = _observe(truth.copy(), valid, rng, sigma, flip_fraction, gross_fraction)
@@ -96,14 +98,16 @@ def _visible(obs, tgt, hfov=np.arctan2(320.0, 400.0), near=0.5, far=8.0):
 
 
 def simulate_two_robots(frames: int, seed: int, sigma=ISSUE_SIGMA, flip_fraction: float = 0.0,
-                        gross_fraction: float = 0.0, speed: float = 0.05) -> FusionSequence:
-    """Two robots moving through `data.Room()` (each `speed` m per frame)."""
+                        gross_fraction: float = 0.0, speed: float = 0.25, trans_frac: float = 0.02,
+                        deg_per_m: float = 0.5) -> FusionSequence:
+    """Two robots moving through `data.Room()` (each `speed` m per frame; trajectories and
+    odometry seeds as `generate --scenario rendezvous`)."""
     from ..data import noisy_odometry, rendezvous
 
     rng = np.random.default_rng([seed, 2])
     ta, tb = rendezvous(frames, seed, speed=speed)
-    oa = _from_origin(noisy_odometry(ta, seed * 2 + 11))
-    ob = _from_origin(noisy_odometry(tb, seed * 2 + 12))
+    oa = _from_origin(noisy_odometry(ta, seed * 2 + 1, trans_frac, deg_per_m))
+    ob = _from_origin(noisy_odometry(tb, seed * 2 + 2, trans_frac, deg_per_m))
     a_sees, b_sees = _visible(ta, tb), _visible(tb, ta)
     a_obs = a_sees | ~b_sees
     valid = a_sees | b_sees
