@@ -168,8 +168,8 @@ def test_online_row_k_equals_batch_on_the_first_k_plus_1():
     k = int(kv[4])
     pad = lambda a, n: np.concatenate([a[:n], np.repeat(a[n - 1 : n], K + (a.shape[0] - K) - n, 0)])  # noqa: E731
     r0 = seq.rendezvous
-    cut = r0._replace(odom_a=pad(r0.odom_a, k + 2), odom_b=pad(r0.odom_b, k + 2), observation=pad(r0.observation, k + 1),
-                      a_observes=pad(r0.a_observes, k + 1))
+    cut = r0._replace(odom_a=pad(r0.odom_a, k + 2), odom_b=pad(r0.odom_b, k + 2),
+                      observation=pad(r0.observation, k + 1), a_observes=pad(r0.a_observes, k + 1))
     b = fuse_jit(jax.tree.map(jnp.asarray, cut), CFG, jnp.asarray(seq.valid & (np.arange(K) <= k)))
     np.testing.assert_allclose(np.asarray(on.relative[k]), np.asarray(b.relative[k]), atol=1e-8)
     np.testing.assert_allclose(np.asarray(on.a0_T_b0[k]), np.asarray(b.a0_T_b0), atol=1e-8)

@@ -30,7 +30,6 @@ weight zero, so its nodes just follow the odometry.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Literal, NamedTuple
 
 import jax
@@ -40,8 +39,8 @@ import numpy as np
 
 from ._banded import band_solve
 from ._ladder import ladder_iterate, ladder_normal_equations
-from ._residuals import compose, inverse, poses_to_se2, retract, se2_to_poses
-from ._rhaml_graph import Rendezvous, _planar, _roll_pitch
+from ._residuals import compose, inverse, poses_to_se2, residuals, retract, se2_to_poses
+from ._rhaml_graph import SMALL_GRAPH_COMPILER_OPTIONS, Rendezvous, _planar, _roll_pitch
 from ._solver import Problem
 from ._types import PoseGraph, SolverConfig
 
@@ -334,8 +333,6 @@ def _edge_weights(w):
 
 def _mutual_u2(T, p: Problem, g: FusionGraph):
     """GTSAM's factor error 0.5 r^T Omega r of each mutual edge at T (K,)."""
-    from ._residuals import residuals
-
     r = residuals(T, p.Z_inv, p.ei, p.ej)
     s2 = jnp.einsum("ea,eab,eb->e", r, p.info, r)
     return 0.5 * s2.reshape(-1, 3)[:, 2]
@@ -519,8 +516,6 @@ def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None,
 _graph_jit = jax.jit(_graph, static_argnames="cfg")
 
 # small graphs: XLA's thread pool costs more than it brings (see rhaml_pgo_jit)
-from ._rhaml_graph import SMALL_GRAPH_COMPILER_OPTIONS  # noqa: E402
-
 fuse_jit = jax.jit(fuse, static_argnames="cfg", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
 """`fuse` jit-compiled, one executable per shape and config, shared by all callers."""
 fuse_online_jit = jax.jit(fuse_online, static_argnames="cfg", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
