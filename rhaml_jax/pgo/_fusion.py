@@ -30,7 +30,6 @@ weight zero, so its nodes just follow the odometry.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Literal, NamedTuple
 
 import jax
@@ -40,8 +39,8 @@ import numpy as np
 
 from ._banded import band_solve
 from ._ladder import ladder_iterate, ladder_normal_equations
-from ._residuals import compose, inverse, poses_to_se2, retract, se2_to_poses
-from ._rhaml_graph import Rendezvous, _planar, _roll_pitch
+from ._residuals import compose, inverse, poses_to_se2, residuals, retract, se2_to_poses
+from ._rhaml_graph import SMALL_GRAPH_COMPILER_OPTIONS, Rendezvous, _planar, _roll_pitch
 from ._solver import Problem
 from ._types import PoseGraph, SolverConfig
 
@@ -134,11 +133,12 @@ class FusionResult(NamedTuple):
 
 
 class FusionGraph(NamedTuple):
-    """The graph `fuse` optimises, before GNC (static shapes, K rows)."""
+    """The graph `fuse` optimises, before GNC (static shapes, K rows; poses and measurements as
+    jaxlie SE2 parameters (cos, sin, x, y); `fusion_graph` gives it as a PoseGraph)."""
 
-    poses: jax.Array  # (2K+2, 3) initial guess, node 2k = A_k, 2k+1 = B_k
+    T0: jax.Array  # (2K+2, 4) initial guess, node 2k = A_k, 2k+1 = B_k
+    Z: jax.Array  # (3K, 4) measurements; the mutual ones with the chosen heading hypothesis
     edges: jax.Array  # (3K, 2) int32: per row odometry A, odometry B, mutual (observer, observed)
-    measurements: jax.Array  # (3K, 3); mutual ones with the chosen heading hypothesis
     information: jax.Array  # (3K, 3, 3) unweighted
     usable: jax.Array  # (K,) bool: valid, finite, not deleted (the mutual edges GNC weighs)
     init_weights: jax.Array  # (K,) weights of the first solve
@@ -168,21 +168,18 @@ def odometry_information(odom: jax.Array, noise: OdometryNoise) -> jax.Array:
     return 1.0 / noise.sigmas(step) ** 2
 
 
-def _drift(odom: jax.Array, noise: OdometryNoise):
-    """Cumulative per-row variances of translation (per axis) and heading from the noise model."""
-    u = poses_to_se2(odom).unit_complex_xy
-    step = se2_to_poses(jaxlie.SE2(compose(inverse(u[:-1]), u[1:])))
-    s = noise.sigmas(step)
-    z = jnp.zeros((1,), odom.dtype)
-    return jnp.concatenate([z, jnp.cumsum(s[:, 0] ** 2)]), jnp.concatenate([z, jnp.cumsum(s[:, 2] ** 2)])
+class _ConsensusTerms(NamedTuple):
+    F: jax.Array  # (K, 2, 4) candidate odom_A -> odom_B transforms (SE2 params), h = 0, 1
+    q: jax.Array  # (K, 2, K', 2) Mahalanobis distance of candidate (k, h)'s prediction of k', h'
+    kern: jax.Array  # (K, 2, K') max over h' of prior(k', h') max(0, 1 - q / chi2_3(p))
 
 
-def _consensus(rv: Rendezvous, z4, obs_var, prior, usable, cfg: FusionConfig):
-    """Returns (F* (4,) SE2 params, flip (K,) bool, explained (K,) bool). z4 (K, 4) planar
-    observations, obs_var (K, 3) variances, prior (K, 2) of the two heading hypotheses."""
-    oa = poses_to_se2(rv.odom_a).unit_complex_xy[1:]  # (K, 4) A_k
-    ob = poses_to_se2(rv.odom_b).unit_complex_xy[1:]
-    a_obs = rv.a_observes
+def _consensus_terms(inp: "_Inputs", cfg: FusionConfig) -> _ConsensusTerms:
+    """Every candidate against every observation (observation variances: those of the
+    mutual information actually used)."""
+    z4, prior, a_obs = inp.z4, inp.prior, inp.rv.a_observes
+    obs_var = 1.0 / inp.info[2]
+    oa, ob = inp.ua[1:], inp.ub[1:]  # (K, 4) A_k, odom_b[k]
     zh = jnp.stack([z4, compose(z4, jnp.broadcast_to(_ROT_PI.astype(z4.dtype), z4.shape))], 1)  # (K, 2, 4)
     Bk = jnp.where(a_obs[:, None, None], compose(oa[:, None], zh), compose(oa[:, None], inverse(zh)))
     F = compose(Bk, inverse(ob)[:, None])  # (K, 2, 4)
@@ -192,10 +189,12 @@ def _consensus(rv: Rendezvous, z4, obs_var, prior, usable, cfg: FusionConfig):
     d_xy = pred[..., 2:] - z4[None, None, :, 2:]
     c = z4[None, None, :, 0] * pred[..., 0] + z4[None, None, :, 1] * pred[..., 1]  # cos, sin of z^-1 pred
     s = z4[None, None, :, 0] * pred[..., 1] - z4[None, None, :, 1] * pred[..., 0]
-    d_psi = jnp.stack([jnp.arctan2(s, c), jnp.arctan2(-s, -c)], -1)  # (K, 2, K', 2) for h' = 0, 1
-    # variances of the prediction error (isotropic in translation)
-    ta, pa = _drift(rv.odom_a, cfg.odometry_a)
-    tb, pb = _drift(rv.odom_b, cfg.odometry_b)
+    d_psi = jnp.arctan2(jnp.stack([s, -s], -1), jnp.stack([c, -c], -1))  # (K, 2, K', 2) for h' = 0, 1
+    # variances of the prediction error (isotropic in translation): both observations, the
+    # candidate's heading error levered by the distance either robot travelled since, and
+    # both odometries' drift between the two rows (heading drift levered by that distance
+    # and by the range)
+    (ta, pa), (tb, pb) = inp.drift
     dd = lambda c_: jnp.abs(c_[1:, None] - c_[None, 1:])  # noqa: E731  (K, K') between rows
     lev = lambda o: jnp.sum((o[:, None, 2:] - o[None, :, 2:]) ** 2, -1)  # noqa: E731  squared distance travelled
     lever = lev(oa) + lev(ob)
@@ -207,17 +206,22 @@ def _consensus(rv: Rendezvous, z4, obs_var, prior, usable, cfg: FusionConfig):
     v_p = obs_var[:, 2][:, None] + obs_var[:, 2][None, :] + dpsi
     q = (jnp.sum(d_xy ** 2, -1) / v_t[:, None])[..., None] + d_psi ** 2 / v_p[:, None, :, None]  # (K, 2, K', 2)
     thr = _chi2_3(cfg.consensus_probability)
-    kern = jnp.maximum(0.0, 1.0 - q / thr) * prior[None, None]
-    score = jnp.sum(jnp.where(usable[None, None, :], jnp.max(kern, -1), 0.0), -1)  # (K, 2)
+    kern = jnp.max(jnp.maximum(0.0, 1.0 - q / thr) * prior[None, None], -1)
+    return _ConsensusTerms(F, q, kern)
+
+
+def _consensus_pick(t: _ConsensusTerms, score, prior, usable, cfg: FusionConfig):
+    """score (K, 2): summed kernel of each candidate over the usable observations. Returns
+    (F* (4,), flip (K,) bool, explained (K,) bool)."""
     score = jnp.where(usable[:, None] & (prior > 0), score, -1.0)
-    best = jnp.argmax(score.reshape(-1))
-    qb = q.reshape(-1, *q.shape[2:])[best]  # (K', 2)
+    best = jnp.argmax(score.reshape(-1))  # deterministic: the first of equal scores
+    qb = t.q.reshape(-1, *t.q.shape[2:])[best]  # (K', 2)
     # the hypothesis the consensus predicts, with the prior: min q - 2 log prior
-    logp = jnp.log(jnp.where(prior > 0, prior, 1.0))  # guard: log 0 (the hypothesis is excluded below)
+    logp = jnp.log(jnp.where(prior > 0, prior, 1.0))  # guard: log 0 (that hypothesis is excluded)
     cost = jnp.where(prior > 0, qb - 2.0 * logp, jnp.inf)
     flip = jnp.argmin(cost, -1) == 1
-    explained = usable & (jnp.where(flip, qb[:, 1], qb[:, 0]) < thr)
-    return F.reshape(-1, 4)[best], flip, explained
+    explained = usable & (jnp.where(flip, qb[:, 1], qb[:, 0]) < _chi2_3(cfg.consensus_probability))
+    return t.F.reshape(-1, 4)[best], flip, explained
 
 
 def _sanitize(rv: Rendezvous, valid, flip_prob, obs_sigma, cfg: FusionConfig):
@@ -245,50 +249,79 @@ def _sanitize(rv: Rendezvous, valid, flip_prob, obs_sigma, cfg: FusionConfig):
     return rv, valid & finite, deleted & valid, usable, prior, jnp.asarray(obs_sigma, dt), roll, pitch
 
 
-def _information(rv: Rendezvous, obs_sigma, roll, pitch, cfg: FusionConfig):
-    """(K, 3) diagonal information of odometry A, odometry B and the mutual edges."""
+class _Inputs(NamedTuple):
+    rv: Rendezvous  # sanitised
+    usable: jax.Array  # (K,) bool
+    deleted: jax.Array  # (K,) bool
+    prior: jax.Array  # (K, 2)
+    z4: jax.Array  # (K, 4) planar observations (SE2 parameters)
+    ua: jax.Array  # (K+1, 4) odometry rows of A, B (SE2 parameters)
+    ub: jax.Array
+    odo: jax.Array  # (2K, 4) odometry steps of A, then B
+    info: tuple  # (K, 3) x 3: odometry A, odometry B, mutual (diagonals)
+    drift: tuple  # per robot, cumulative (K+1,) variances of translation and heading (noise model)
+
+
+def _inputs(rv, valid, flip_prob, obs_sigma, cfg: FusionConfig) -> _Inputs:
+    """Everything per row, with one sin/cos and one atan2 call site (XLA expands each inline:
+    fewer sites compile faster)."""
+    rv, valid, deleted, usable, prior, obs_sigma, roll, pitch = _sanitize(rv, valid, flip_prob, obs_sigma, cfg)
     K = rv.observation.shape[0]
-    dt = rv.odom_a.dtype
+    u = poses_to_se2(jnp.concatenate([rv.odom_a, rv.odom_b])).unit_complex_xy
+    ua, ub = u[: K + 1], u[K + 1 :]
+    odo = jnp.concatenate([compose(inverse(ua[:-1]), ua[1:]), compose(inverse(ub[:-1]), ub[1:])])
+    step = se2_to_poses(jaxlie.SE2(odo))
+    sa, sb = cfg.odometry_a.sigmas(step[:K]), cfg.odometry_b.sigmas(step[K:])
+    zero = jnp.zeros((1,), step.dtype)
+    cum = lambda v: jnp.concatenate([zero, jnp.cumsum(v)])  # noqa: E731
+    drift = ((cum(sa[:, 0] ** 2), cum(sa[:, 2] ** 2)), (cum(sb[:, 0] ** 2), cum(sb[:, 2] ** 2)))
     if cfg.information == "paper":
         km = 0.5 * cfg.kappa * jnp.exp(-jnp.abs(roll) - jnp.abs(pitch))
-        odo = jnp.full((K, 3), cfg.kappa, dt)
-        return odo, odo, jnp.stack([km, km, cfg.tau * km], -1)
-    return (odometry_information(rv.odom_a, cfg.odometry_a), odometry_information(rv.odom_b, cfg.odometry_b),
-            1.0 / obs_sigma ** 2)
+        o = jnp.full((K, 3), cfg.kappa, step.dtype)
+        info = (o, o, jnp.stack([km, km, cfg.tau * km], -1))
+    else:
+        info = (1.0 / sa ** 2, 1.0 / sb ** 2, 1.0 / obs_sigma ** 2)
+    return _Inputs(rv, usable, deleted, prior, _planar(rv.observation), ua, ub, odo, info, drift)
+
+
+def _measurements(inp: _Inputs, flip, usable):
+    """(3K, 4) measurements (odometry A, odometry B, mutual with the chosen heading) and their
+    (3K, 3, 3) information (mutual: zero where not usable)."""
+    z4 = inp.z4
+    K = z4.shape[0]
+    z_used = jnp.where(flip[:, None], compose(z4, jnp.broadcast_to(_ROT_PI.astype(z4.dtype), z4.shape)), z4)
+    Z = jnp.stack([inp.odo[:K], inp.odo[K:], z_used], 1).reshape(3 * K, 4)
+    i_a, i_b, i_m = inp.info
+    i_m = jnp.where(usable[:, None], i_m, 0.0)
+    info = jnp.stack([i_a, i_b, i_m], 1).reshape(3 * K, 3)[:, :, None] * jnp.eye(3, dtype=z4.dtype)
+    return Z, info
+
+
+def _assemble(inp: _Inputs, F, flip, explained, usable, cfg: FusionConfig) -> FusionGraph:
+    """The ladder graph with B placed by F (SE2 params (4,)) and the chosen headings."""
+    K = inp.z4.shape[0]
+    flip = flip & usable
+    T0 = jnp.stack([inp.ua, compose(F[None], inp.ub)], 1).reshape(2 * K + 2, 4)
+    Z, info = _measurements(inp, flip, usable)
+    k = jnp.arange(1, K + 1)
+    A_k, B_k = 2 * k, 2 * k + 1
+    mutual = jnp.where(inp.rv.a_observes[:, None], jnp.stack([A_k, B_k], -1), jnp.stack([B_k, A_k], -1))
+    edges = jnp.stack([jnp.stack([A_k - 2, A_k], -1), jnp.stack([B_k - 2, B_k], -1), mutual], 1).reshape(3 * K, 2)
+    w0 = (explained if cfg.gnc_init_weights == "consensus" else usable).astype(T0.dtype)
+    return FusionGraph(T0, Z, edges.astype(jnp.int32), info, usable, w0, flip, explained, inp.deleted,
+                       inp.rv.a_observes)
 
 
 def _graph(rv, valid, flip_prob, obs_sigma, cfg: FusionConfig) -> FusionGraph:
-    rv, valid, deleted, usable, prior, obs_sigma, roll, pitch = _sanitize(rv, valid, flip_prob, obs_sigma, cfg)
-    K = rv.observation.shape[0]
-    z4 = _planar(rv.observation)
-    i_a, i_b, i_m = _information(rv, obs_sigma, roll, pitch, cfg)
-    # the consensus sees the observation variances of the information actually used
-    F, flip, explained = _consensus(rv, z4, 1.0 / i_m, prior, usable, cfg)
-    z_used = jnp.where(flip[:, None], compose(z4, jnp.broadcast_to(_ROT_PI.astype(z4.dtype), z4.shape)), z4)
-    ua = poses_to_se2(rv.odom_a).unit_complex_xy
-    ub = poses_to_se2(rv.odom_b).unit_complex_xy
-    B = compose(F[None], ub)  # (K+1, 4)
-    odo_a = compose(inverse(ua[:-1]), ua[1:])
-    odo_b = compose(inverse(ub[:-1]), ub[1:])
-    xyt = se2_to_poses(jaxlie.SE2(jnp.concatenate([B, odo_a, odo_b, z_used])))
-    pb, ma, mb, mz = jnp.split(xyt, [K + 1, 2 * K + 1, 3 * K + 1])
-    poses = jnp.stack([rv.odom_a, pb], 1).reshape(2 * K + 2, 3)
-    k = jnp.arange(1, K + 1)
-    A_k, B_k = 2 * k, 2 * k + 1
-    mutual = jnp.where(rv.a_observes[:, None], jnp.stack([A_k, B_k], -1), jnp.stack([B_k, A_k], -1))
-    edges = jnp.stack([jnp.stack([A_k - 2, A_k], -1), jnp.stack([B_k - 2, B_k], -1), mutual], 1).reshape(3 * K, 2)
-    meas = jnp.stack([ma, mb, mz], 1).reshape(3 * K, 3)
-    i_m = jnp.where(usable[:, None], i_m, 0.0)
-    info = jnp.stack([i_a, i_b, i_m], 1).reshape(3 * K, 3)[:, :, None] * jnp.eye(3, dtype=xyt.dtype)
-    w0 = (explained if cfg.gnc_init_weights == "consensus" else usable).astype(xyt.dtype)
-    return FusionGraph(poses, edges.astype(jnp.int32), meas, info, usable, w0, flip & usable, explained, deleted,
-                       rv.a_observes)
+    inp = _inputs(rv, valid, flip_prob, obs_sigma, cfg)
+    t = _consensus_terms(inp, cfg)
+    score = jnp.sum(jnp.where(inp.usable[None, None, :], t.kern, 0.0), -1)
+    F, flip, explained = _consensus_pick(t, score, inp.prior, inp.usable, cfg)
+    return _assemble(inp, F, flip, explained, inp.usable, cfg)
 
 
 def _problem(g: FusionGraph) -> Problem:
-    n = g.poses.shape[0]
-    both = poses_to_se2(jnp.concatenate([g.poses, g.measurements])).unit_complex_xy
-    return Problem(both[:n], inverse(both[n:]), g.edges[:, 0], g.edges[:, 1], g.information,
+    return Problem(g.T0, inverse(g.Z), g.edges[:, 0], g.edges[:, 1], g.information,
                    jnp.zeros(g.edges.shape[0], bool), None, None, None)
 
 
@@ -300,8 +333,6 @@ def _edge_weights(w):
 
 def _mutual_u2(T, p: Problem, g: FusionGraph):
     """GTSAM's factor error 0.5 r^T Omega r of each mutual edge at T (K,)."""
-    from ._residuals import residuals
-
     r = residuals(T, p.Z_inv, p.ei, p.ej)
     s2 = jnp.einsum("ea,eab,eb->e", r, p.info, r)
     return 0.5 * s2.reshape(-1, 3)[:, 2]
@@ -326,35 +357,38 @@ def _solve(p: Problem, T_start, w, a_observes, cfg: FusionConfig):
 
 def _robust_solve(g: FusionGraph, cfg: FusionConfig):
     """GNC-TLS as GTSAM's GncOptimizer (see the module docstring). Returns (T (2K+2, 4),
-    weights (K,), weighted cost, GNC iterations, linear solves)."""
+    weights (K,), weighted cost, GNC iterations, linear solves). The first solve (initial
+    weights) is iteration 0 of the same loop: one copy of the solver in the program."""
     p = _problem(g)
     T0 = p.T0
     dt = T0.dtype
-    T, cost, solves = _solve(p, T0, g.init_weights, g.a_observes, cfg)
-    if cfg.robust == "none":
-        w = g.usable.astype(dt)
-        if cfg.gnc_init_weights == "consensus":
-            w = g.init_weights
-        return T, w, cost, jnp.asarray(0, jnp.int32), solves
     barc = jnp.asarray(cfg.barc_sq, dt)
-    u2_0 = _mutual_u2(T0, p, g)
-    excess = 2.0 * u2_0 - barc
-    mu0 = jnp.min(jnp.where(g.usable & (excess > 0), barc / jnp.where(excess > 0, excess, 1.0), jnp.inf))
-    mu0 = jnp.where(jnp.isfinite(mu0), jnp.maximum(mu0, 1e-6), -1.0)
-    skip = (mu0 <= 0) | ~jnp.any(g.usable)
+    if cfg.robust == "gnc_tls":
+        u2_0 = _mutual_u2(T0, p, g)
+        excess = 2.0 * u2_0 - barc
+        mu0 = jnp.min(jnp.where(g.usable & (excess > 0), barc / jnp.where(excess > 0, excess, 1.0), jnp.inf))
+        mu0 = jnp.where(jnp.isfinite(mu0), jnp.maximum(mu0, 1e-6), -1.0)
+        skip = (mu0 <= 0) | ~jnp.any(g.usable)
+    else:
+        mu0, skip = jnp.asarray(-1.0, dt), jnp.asarray(True)
 
     def body(c):
         T, w, mu, prev, _, it, solves, _ = c
-        w = _tls_weights(_mutual_u2(T, p, g), mu, barc, g.usable)
-        T, cost, n = _solve(p, T if cfg.gnc_warm_start else T0, w, g.a_observes, cfg)
+        first = it == 0
+        w = jnp.where(first, g.init_weights, _tls_weights(_mutual_u2(T, p, g), mu, barc, g.usable))
+        start = T if cfg.gnc_warm_start else T0
+        T, cost, n = _solve(p, jnp.where(first, T0, start), w, g.a_observes, cfg)
         rel = jnp.abs(cost - prev) / jnp.maximum(prev, 1e-7)
         binary = jnp.all(jnp.abs(w - jnp.round(w)) <= cfg.gnc_weights_tol)
-        done = (rel < cfg.gnc_relative_cost_tol) | binary | (it + 1 >= cfg.gnc_max_iterations)
-        return T, w, mu * cfg.gnc_mu_step, cost, cost, it + 1, solves + n, done
+        done = jnp.where(first, skip, (rel < cfg.gnc_relative_cost_tol) | binary | (it >= cfg.gnc_max_iterations))
+        mu = jnp.where(first, mu, mu * cfg.gnc_mu_step)
+        return T, w, mu, cost, cost, it + 1, solves + n, done
 
-    c = (T, g.init_weights, mu0, cost, cost, jnp.asarray(0, jnp.int32), solves, skip)
+    inf = jnp.asarray(jnp.inf, dt)
+    zero = jnp.asarray(0, jnp.int32)
+    c = (T0, g.init_weights, mu0.astype(dt), inf, inf, zero, zero, jnp.asarray(False))
     T, w, _, _, cost, it, solves, _ = jax.lax.while_loop(lambda c: ~c[-1], body, c)
-    return T, w, cost, it, solves
+    return T, w, cost, it - 1, solves
 
 
 def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
@@ -374,15 +408,14 @@ def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
     return retract(T, x.reshape(2 * K + 2, 3))
 
 
-def _result(T4, g: FusionGraph, rv_odom_b0, w, cost, it, solves) -> FusionResult:
+def _result(T4, g: FusionGraph, ub0, w, cost, it, solves) -> FusionResult:
     K = g.usable.shape[0]
     pr = T4.reshape(K + 1, 2, 4)
     A, B = pr[:, 0], pr[:, 1]
     rel = compose(inverse(A[1:]), B[1:])
     rel = jnp.where(g.a_observes[:, None], rel, inverse(rel))
     a0b0 = compose(inverse(A[:1]), B[:1])
-    ob0 = poses_to_se2(rv_odom_b0[None]).unit_complex_xy
-    F = compose(B[:1], inverse(ob0))
+    F = compose(B[:1], inverse(ub0[None]))
     xyt = se2_to_poses(jaxlie.SE2(jnp.concatenate([A, B, rel, a0b0, F])))
     pa, pb, rel, a0b0, F = jnp.split(xyt, [K + 1, 2 * K + 2, 3 * K + 2, 3 * K + 3])
     inlier = g.usable & (w > 0.5)
@@ -400,54 +433,63 @@ def fuse(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | 
     sg = jax.lax.stop_gradient
     g0 = _graph(jax.tree.map(sg, rv), valid, None if flip_prob is None else sg(flip_prob),
                 None if obs_sigma is None else sg(obs_sigma), cfg)
+    return _fuse_graph(rv, valid, obs_sigma, g0, cfg)
+
+
+def _fuse_graph(rv, valid, obs_sigma, g0: FusionGraph, cfg: FusionConfig) -> FusionResult:
+    """GNC on g0 (no gradient), then the differentiable final step."""
+    sg = jax.lax.stop_gradient
     T, w, cost, it, solves = _robust_solve(g0, cfg)
-    # the differentiable graph: the same decisions (flips, weights, initial guess), with
-    # measurements and information traced from the inputs
-    g = _graph_fixed(rv, valid, obs_sigma, cfg, g0)
+    # the differentiable graph: the same decisions (flips, weights), with measurements and
+    # information traced from the inputs
+    g, ub0 = _graph_fixed(rv, valid, obs_sigma, cfg, g0)
     T = _final_step(sg(T), g, sg(w), cfg)
-    return _result(T, g, jnp.asarray(rv.odom_b[0], T.dtype), w, cost, it, solves)
+    return _result(T, g, ub0, w, cost, it, solves)
 
 
-def _graph_fixed(rv, valid, obs_sigma, cfg: FusionConfig, g0: FusionGraph) -> FusionGraph:
-    """g0's graph with measurements and information recomputed (differentiably) from the inputs."""
-    rv, _, _, _, _, obs_sigma, roll, pitch = _sanitize(rv, valid, None, obs_sigma, cfg)
-    K = rv.observation.shape[0]
-    z4 = _planar(rv.observation)
-    i_a, i_b, i_m = _information(rv, obs_sigma, roll, pitch, cfg)
-    z_used = jnp.where(g0.flipped[:, None], compose(z4, jnp.broadcast_to(_ROT_PI.astype(z4.dtype), z4.shape)), z4)
-    ua = poses_to_se2(rv.odom_a).unit_complex_xy
-    ub = poses_to_se2(rv.odom_b).unit_complex_xy
-    odo_a = compose(inverse(ua[:-1]), ua[1:])
-    odo_b = compose(inverse(ub[:-1]), ub[1:])
-    xyt = se2_to_poses(jaxlie.SE2(jnp.concatenate([odo_a, odo_b, z_used])))
-    ma, mb, mz = jnp.split(xyt, [K, 2 * K])
-    meas = jnp.stack([ma, mb, mz], 1).reshape(3 * K, 3)
-    i_m = jnp.where(g0.usable[:, None], i_m, 0.0)
-    info = jnp.stack([i_a, i_b, i_m], 1).reshape(3 * K, 3)[:, :, None] * jnp.eye(3, dtype=xyt.dtype)
-    return g0._replace(measurements=meas, information=info)
+def _graph_fixed(rv, valid, obs_sigma, cfg: FusionConfig, g0: FusionGraph):
+    """g0's graph with measurements and information recomputed (differentiably) from the
+    inputs; also B's first odometry row (SE2 params)."""
+    inp = _inputs(rv, valid, None, obs_sigma, cfg)
+    Z, info = _measurements(inp, g0.flipped, g0.usable)
+    return g0._replace(Z=Z, information=info), inp.ub[0]
 
 
 def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | None = None,
                 flip_prob: jax.Array | None = None, obs_sigma: jax.Array | None = None) -> FusionResult:
-    """Online fusion: one `fuse` per row k on the rendezvous <= k (later rows masked; their
-    dangling odometry changes nothing), as one `lax.scan` compiled once for K rows.
+    """Online fusion: at each row k, `fuse` on the rendezvous <= k (later rows masked: their
+    dangling odometry changes nothing), as one `lax.scan` compiled once for K rows. The
+    consensus terms (every candidate against every observation) are computed once and summed
+    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph.
 
     Row k of `relative`, `a0_T_b0` (K, 3), `odom_a_T_odom_b` (K, 3), `inlier`, `flipped` and
     `weights` is what the update at row k said about row k; `poses_a`, `poses_b`, `deleted`,
     `consensus`, `final_cost` are the last update's (= `fuse` on everything); `iterations` and
     `solves` are summed over the updates."""
+    sg = jax.lax.stop_gradient
     K = rv.observation.shape[0]
     base = jnp.ones((K,), bool) if valid is None else jnp.asarray(valid, bool)
     rows = jnp.arange(K)
+    inp = _inputs(jax.tree.map(sg, rv), base, None if flip_prob is None else sg(flip_prob),
+                  None if obs_sigma is None else sg(obs_sigma), cfg)
+    t = _consensus_terms(inp, cfg)
+    S = jnp.cumsum(jnp.where(inp.usable[None, None, :], t.kern, 0.0), -1)  # (K, 2, K): score after row k
 
-    def step(carry, k):
-        r = fuse(rv, cfg, base & (rows <= k), flip_prob, obs_sigma)
+    def update(k):
+        usable = inp.usable & (rows <= k)
+        F, flip, explained = _consensus_pick(t, S[:, :, k], inp.prior, usable, cfg)
+        g0 = _assemble(inp, F, flip, explained, usable, cfg)
+        return _fuse_graph(rv, base & (rows <= k), obs_sigma, g0, cfg)
+
+    def step(last, k):
+        r = update(k)
         out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k], r.iterations,
                r.solves)
-        return carry, out
+        return r, out
 
-    _, (rel, a0b0, F, inl, flp, w, it, sol) = jax.lax.scan(step, None, rows)
-    last = fuse(rv, cfg, base, flip_prob, obs_sigma)
+    init = jax.eval_shape(update, jnp.asarray(0))
+    init = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), init)
+    last, (rel, a0b0, F, inl, flp, w, it, sol) = jax.lax.scan(step, init, rows)
     return last._replace(relative=rel, a0_T_b0=a0b0, odom_a_T_odom_b=F, inlier=inl, flipped=flp, weights=w,
                          iterations=jnp.sum(it), solves=jnp.sum(sol))
 
@@ -464,7 +506,9 @@ def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None,
     keep = keep.reshape(-1)
     robust = np.zeros((K, 3), bool)
     robust[:, 2] = True
-    pg = PoseGraph(np.asarray(g.poses, np.float64), np.asarray(g.edges)[keep], np.asarray(g.measurements)[keep],
+    xyt = lambda a: np.stack([a[:, 2], a[:, 3], np.arctan2(a[:, 1], a[:, 0])], 1)  # noqa: E731
+    T0, Z = np.asarray(g.T0, np.float64), np.asarray(g.Z, np.float64)
+    pg = PoseGraph(xyt(T0), np.asarray(g.edges)[keep], xyt(Z)[keep],
                    np.asarray(g.information)[keep], np.arange(2 * K + 2, dtype=np.int64), 0, robust.reshape(-1)[keep])
     return pg, g
 
@@ -472,8 +516,6 @@ def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None,
 _graph_jit = jax.jit(_graph, static_argnames="cfg")
 
 # small graphs: XLA's thread pool costs more than it brings (see rhaml_pgo_jit)
-from ._rhaml_graph import SMALL_GRAPH_COMPILER_OPTIONS  # noqa: E402
-
 fuse_jit = jax.jit(fuse, static_argnames="cfg", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
 """`fuse` jit-compiled, one executable per shape and config, shared by all callers."""
 fuse_online_jit = jax.jit(fuse_online, static_argnames="cfg", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)

@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..planar import between, wrap_angle
 from ._fusion import rendezvous_from_frames
 from ._rhaml_graph import Rendezvous, observation_from_xy_yaw_rp
 
@@ -35,10 +36,6 @@ class FusionSequence(NamedTuple):
     a0_T_b0: np.ndarray  # (3,) true
     flipped: np.ndarray  # (K,) bool: heading turned by 180 deg
     gross: np.ndarray  # (K,) bool: replaced by a wrong pose
-
-
-def _wrap(a):
-    return np.arctan2(np.sin(a), np.cos(a))
 
 
 def _observe(rel, valid, rng, sigma, flip_fraction, gross_fraction):
@@ -57,30 +54,24 @@ def _observe(rel, valid, rng, sigma, flip_fraction, gross_fraction):
     meas[gross, 0] = rel[gross, 0] + dist * np.cos(ang)
     meas[gross, 1] = rel[gross, 1] + dist * np.sin(ang)
     meas[gross, 2] = rng.uniform(-np.pi, np.pi, n_gross)
-    meas[:, 2] = _wrap(meas[:, 2])
+    meas[:, 2] = wrap_angle(meas[:, 2])
     return meas, flipped, gross
 
 
-def relative(a, b):
-    """Planar a^-1 b for (..., 3) poses (as `data.relative`, kept here so that importing
-    pgo does not import the data package)."""
-    d = b[..., :2] - a[..., :2]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], _wrap(b[..., 2] - a[..., 2])], -1)
-
-
 def _from_origin(odom):
-    return relative(odom[:1], odom)
+    return between(odom[:1], odom)
 
 
 def simulate_static_observer(truth: np.ndarray, seed: int, sigma=ISSUE_SIGMA, flip_fraction: float = 0.0,
-                             gross_fraction: float = 0.0) -> FusionSequence:
-    """truth (N, 3): B's path in the (static) observer's frame."""
+                             gross_fraction: float = 0.0, trans_frac: float = 0.02,
+                             deg_per_m: float = 0.5) -> FusionSequence:
+    """truth (N, 3): B's path in the (static) observer's frame; B's odometry noise
+    `trans_frac`, `deg_per_m` (DESIGN.md section 3's by default)."""
     from ..data import noisy_odometry
 
     rng = np.random.default_rng([seed, 1])
     N = truth.shape[0]
-    odom_b = _from_origin(noisy_odometry(truth, seed))
+    odom_b = _from_origin(noisy_odometry(truth, seed * 2 + 1, trans_frac, deg_per_m))  # seed as generate's
     odom_a = np.zeros((N, 3))
     valid = np.ones(N, bool)
     meas, flipped, gross = _observe(truth.copy(), valid, rng, sigma, flip_fraction, gross_fraction)
@@ -90,25 +81,27 @@ def simulate_static_observer(truth: np.ndarray, seed: int, sigma=ISSUE_SIGMA, fl
 
 
 def _visible(obs, tgt, hfov=np.arctan2(320.0, 400.0), near=0.5, far=8.0):
-    r = relative(obs, tgt)
+    r = between(obs, tgt)
     d = np.hypot(r[:, 0], r[:, 1])
     return (r[:, 0] > 0) & (np.abs(np.arctan2(r[:, 1], r[:, 0])) <= hfov) & (d >= near) & (d <= far)
 
 
 def simulate_two_robots(frames: int, seed: int, sigma=ISSUE_SIGMA, flip_fraction: float = 0.0,
-                        gross_fraction: float = 0.0, speed: float = 0.05) -> FusionSequence:
-    """Two robots moving through `data.Room()` (each `speed` m per frame)."""
+                        gross_fraction: float = 0.0, speed: float = 0.25, trans_frac: float = 0.02,
+                        deg_per_m: float = 0.5) -> FusionSequence:
+    """Two robots moving through `data.Room()` (each `speed` m per frame; trajectories and
+    odometry seeds as `generate --scenario rendezvous`)."""
     from ..data import noisy_odometry, rendezvous
 
     rng = np.random.default_rng([seed, 2])
     ta, tb = rendezvous(frames, seed, speed=speed)
-    oa = _from_origin(noisy_odometry(ta, seed * 2 + 11))
-    ob = _from_origin(noisy_odometry(tb, seed * 2 + 12))
+    oa = _from_origin(noisy_odometry(ta, seed * 2 + 1, trans_frac, deg_per_m))
+    ob = _from_origin(noisy_odometry(tb, seed * 2 + 2, trans_frac, deg_per_m))
     a_sees, b_sees = _visible(ta, tb), _visible(tb, ta)
     a_obs = a_sees | ~b_sees
     valid = a_sees | b_sees
-    rel = np.where(a_obs[:, None], relative(ta, tb), relative(tb, ta))
+    rel = np.where(a_obs[:, None], between(ta, tb), between(tb, ta))
     meas, flipped, gross = _observe(rel, valid, rng, sigma, flip_fraction, gross_fraction)
     obs = np.asarray(observation_from_xy_yaw_rp(meas), np.float64)
     rv = rendezvous_from_frames(oa, ob, obs, a_obs)
-    return FusionSequence(rv, valid, rel, relative(ta[:1], tb[:1])[0], flipped & valid, gross & valid)
+    return FusionSequence(rv, valid, rel, between(ta[:1], tb[:1])[0], flipped & valid, gross & valid)

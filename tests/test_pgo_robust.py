@@ -1,0 +1,210 @@
+"""Robust fusion (`pgo.fuse`, `pgo.fuse_online`): the optimum on clean data, 40 % flipped + 10 %
+gross observations within 1.2x of the outlier-free error with the rejected ones reported, static
+observer and two moving robots, the gradient against finite differences, online row k = batch
+on the first k+1 rendezvous, and GTSAM's GncOptimizer on the same graph. One row count (K = 40)
+and one config everywhere, so each jitted function compiles once. Float64."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rhaml_jax.data import circle, sine
+from rhaml_jax.metrics import ate
+from rhaml_jax.pgo import (
+    FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fusion_graph, observation_from_xy_yaw_rp,
+    odometry_information, simulate_static_observer, simulate_two_robots,
+)
+
+K = 40
+CFG = FusionConfig()
+
+
+@pytest.fixture(autouse=True)
+def _x64():
+    with jax.enable_x64(True):
+        yield
+
+
+def _dev(seq):
+    return jax.tree.map(jnp.asarray, seq.rendezvous)
+
+
+def _wrap(a):
+    return np.arctan2(np.sin(a), np.cos(a))
+
+
+def _ate(r, seq):
+    v = seq.valid
+    return float(ate(jnp.asarray(r.relative)[v], jnp.asarray(seq.true_relative)[v]))
+
+
+def test_noise_model_information():
+    noise = OdometryNoise(trans_frac=0.03, deg_per_m=1.0, rot_frac=0.1, min_sigma_xy_m=1e-3, min_sigma_psi_rad=2e-3)
+    odom = jnp.array([[0.0, 0.0, 0.0], [0.3, 0.4, 0.2], [0.3, 0.4, 0.2]])  # a 0.5 m step, then standing still
+    info = np.asarray(odometry_information(odom, noise))
+    st = np.hypot(0.03 * 0.5, 1e-3)
+    sp = np.hypot(np.deg2rad(1.0) * 0.5 + 0.1 * 0.2, 2e-3)
+    np.testing.assert_allclose(info[0], [st ** -2, st ** -2, sp ** -2], rtol=1e-12)
+    np.testing.assert_allclose(info[1], [1e-3 ** -2, 1e-3 ** -2, 2e-3 ** -2], rtol=1e-12)  # the floors
+
+
+def test_clean_data_recovers_the_truth():
+    # exact observations and odometry, 30 % of the headings flipped: the truth itself
+    seq = simulate_two_robots(K, 3, sigma=(0.0, 0.0, 0.0), flip_fraction=0.3, trans_frac=0.0, deg_per_m=0.0)
+    r = fuse_jit(_dev(seq), CFG, jnp.asarray(seq.valid))
+    v = seq.valid
+    np.testing.assert_allclose(np.asarray(r.relative)[v, :2], seq.true_relative[v, :2], atol=1e-8)
+    np.testing.assert_allclose(_wrap(np.asarray(r.relative)[v, 2] - seq.true_relative[v, 2]), 0.0, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(r.a0_T_b0), seq.a0_T_b0, atol=1e-8)
+    # odometries start at the origin: B's odometry frame in A's is A_0 T B_0
+    np.testing.assert_allclose(np.asarray(r.odom_a_T_odom_b), np.asarray(r.a0_T_b0), atol=1e-9)
+    np.testing.assert_array_equal(np.asarray(r.inlier), v)
+    np.testing.assert_array_equal(np.asarray(r.flipped), seq.flipped)
+
+
+def _make(scenario, seed, ff, gf):
+    if scenario == "two_robots":
+        return simulate_two_robots(K, seed, flip_fraction=ff, gross_fraction=gf)
+    return simulate_static_observer(circle(K) if scenario == "circle" else sine(K), seed, flip_fraction=ff,
+                                    gross_fraction=gf)
+
+
+@pytest.mark.parametrize("scenario", ["circle", "sine", "two_robots"])
+def test_flips_and_gross_outliers_stay_within_1p2x_of_clean(scenario):
+    errors = []
+    for seed in range(4):
+        clean, bad = _make(scenario, seed, 0.0, 0.0), _make(scenario, seed, 0.4, 0.1)  # the same noise
+        v = clean.valid
+        assert 0 < bad.gross.sum() and bad.flipped.sum() >= 0.35 * v.sum()
+        if scenario == "two_robots":  # both robots observe; rows without a rendezvous hold NaN
+            assert 0 < clean.rendezvous.a_observes[v].mean() < 1 and not v.all()
+            obs = np.where(v[:, None], bad.rendezvous.observation, np.nan)
+            bad = bad._replace(rendezvous=bad.rendezvous._replace(observation=obs))
+        rc = fuse_jit(_dev(clean), CFG, jnp.asarray(v))
+        rb = fuse_jit(_dev(bad), CFG, jnp.asarray(v))
+        # the oracle: the clean sequence without the rows that were replaced by wrong poses
+        ro = fuse_jit(_dev(clean), CFG, jnp.asarray(v & ~bad.gross))
+        np.testing.assert_allclose(np.asarray(rb.relative)[v], np.asarray(ro.relative)[v], atol=1e-6)
+        np.testing.assert_allclose(np.asarray(rb.a0_T_b0), np.asarray(ro.a0_T_b0), atol=1e-6)
+        # rejected observations reported: exactly the gross ones (and the rows without rendezvous)
+        np.testing.assert_array_equal(np.asarray(rb.inlier), v & ~bad.gross)
+        np.testing.assert_array_equal(np.asarray(rb.flipped)[v & ~bad.gross], bad.flipped[v & ~bad.gross])
+        assert np.all(np.asarray(rb.weights)[~v] == 0) and np.all(np.isfinite(np.asarray(rb.relative)))
+        errors.append((_ate(rc, clean), _ate(rb, bad)))
+    e_clean, e_bad = np.mean(errors, 0)
+    assert e_clean < 0.06
+    # what is left is the information of the 10 % rows lost (the oracle's error, equal above)
+    assert e_bad <= 1.2 * e_clean, errors
+
+
+def test_roll_pitch_deletion_and_paper_information():
+    seq = simulate_static_observer(circle(K), 3, flip_fraction=0.2)
+    rv = seq.rendezvous
+    xy_yaw = np.asarray(seq.true_relative)
+    rp = np.zeros((K, 2))
+    rp[[4, 9], [0, 1]] = np.deg2rad([15.0, -12.0])  # two tilted observations
+    rp[7] = np.deg2rad([3.0, -2.0])
+    obs = np.array(observation_from_xy_yaw_rp(xy_yaw, rp))
+    obs[:, :4] = np.where(seq.flipped[:, None], np.asarray(observation_from_xy_yaw_rp(
+        xy_yaw + np.array([0, 0, np.pi]), rp))[:, :4], obs[:, :4])
+    rv = rv._replace(observation=obs)
+    r = fuse_jit(jax.tree.map(jnp.asarray, rv), CFG)
+    deleted = np.zeros(K, bool)
+    deleted[[4, 9]] = True
+    np.testing.assert_array_equal(np.asarray(r.deleted), deleted)
+    np.testing.assert_array_equal(np.asarray(r.inlier), ~deleted)
+    # eqs. 9-10 with information="paper"
+    paper = dataclasses.replace(CFG, information="paper", kappa=80.0, tau=0.25)
+    _, g = fusion_graph(jax.tree.map(jnp.asarray, rv), paper)
+    info = np.asarray(g.information).reshape(K, 3, 3, 3)
+    np.testing.assert_allclose(info[:, 0], np.broadcast_to(80.0 * np.eye(3), (K, 3, 3)))
+    km = 40.0 * np.exp(-np.deg2rad(5.0))
+    np.testing.assert_allclose(info[7, 2], np.diag([km, km, 0.25 * km]), rtol=1e-9)
+    assert np.all(info[[4, 9], 2] == 0)
+
+
+def test_gradient_through_fuse_is_finite_nonzero_and_matches_finite_differences():
+    seq = simulate_static_observer(circle(K), 4, flip_fraction=0.4, gross_fraction=0.1)
+    rv = _dev(seq)
+    truth = jnp.asarray(seq.true_relative)
+
+    def loss(obs):
+        return jnp.sum((fuse(rv._replace(observation=obs), CFG).relative - truth) ** 2)
+
+    f = jax.jit(jax.value_and_grad(loss))
+    _, g = f(rv.observation)
+    g = np.asarray(g)
+    assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
+    assert np.all(g[seq.gross] == 0)  # rejected observations do not move the result
+    i = int(np.flatnonzero(~seq.gross & ~seq.flipped)[3])
+    for col in (4, 5):  # x and y of an inlier
+        e = jnp.zeros_like(rv.observation).at[i, col].set(1e-6)
+        fd = (f(rv.observation + e)[0] - f(rv.observation - e)[0]) / 2e-6
+        # the Gauss-Newton form of the implicit derivative (no residual-curvature term): ~1e-3 off
+        assert g[i, col] == pytest.approx(float(fd), rel=1e-2, abs=1e-4)
+
+
+def test_online_row_k_equals_batch_on_the_first_k_plus_1():
+    seq = simulate_two_robots(K, 3, flip_fraction=0.4, gross_fraction=0.1)
+    rv, valid = _dev(seq), jnp.asarray(seq.valid)
+    on = fuse_online_jit(rv, CFG, valid)
+    batch = fuse_jit(rv, CFG, valid)
+    np.testing.assert_allclose(np.asarray(on.poses_b), np.asarray(batch.poses_b), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(on.relative[-1]), np.asarray(batch.relative[-1]), atol=1e-9)
+    kv = np.flatnonzero(seq.valid)
+    for k in (int(kv[0]), int(kv[3]), int(kv[len(kv) // 2]), K - 2):
+        # the first k+1 rendezvous alone, padded back to K rows with the future masked
+        mask = valid & (jnp.arange(K) <= k)
+        b = fuse_jit(rv, CFG, mask)
+        np.testing.assert_allclose(np.asarray(on.relative[k]), np.asarray(b.relative[k]), atol=1e-8)
+        np.testing.assert_allclose(np.asarray(on.a0_T_b0[k]), np.asarray(b.a0_T_b0), atol=1e-8)
+        assert bool(on.inlier[k]) == bool(b.inlier[k])
+    # the future cut off: the first k+1 rows, then standing still with no rendezvous (same shape)
+    k = int(kv[4])
+    pad = lambda a, n: np.concatenate([a[:n], np.repeat(a[n - 1 : n], K + (a.shape[0] - K) - n, 0)])  # noqa: E731
+    r0 = seq.rendezvous
+    cut = r0._replace(odom_a=pad(r0.odom_a, k + 2), odom_b=pad(r0.odom_b, k + 2),
+                      observation=pad(r0.observation, k + 1), a_observes=pad(r0.a_observes, k + 1))
+    b = fuse_jit(jax.tree.map(jnp.asarray, cut), CFG, jnp.asarray(seq.valid & (np.arange(K) <= k)))
+    np.testing.assert_allclose(np.asarray(on.relative[k]), np.asarray(b.relative[k]), atol=1e-8)
+    np.testing.assert_allclose(np.asarray(on.a0_T_b0[k]), np.asarray(b.a0_T_b0), atol=1e-8)
+
+
+def test_matches_gtsam_gnc_optimizer_on_the_same_graph():
+    gtsam = pytest.importorskip("gtsam", reason="gtsam (pip package) is the reference for this test")
+    seq = simulate_static_observer(sine(K), 6, flip_fraction=0.3, gross_fraction=0.15)
+    rv = _dev(seq)
+    cfg = CFG
+    pg, g = fusion_graph(rv, cfg)
+    r = fuse_jit(rv, cfg)
+    fg = gtsam.NonlinearFactorGraph()
+    known = []
+    for e, ((i, j), z, L, rob) in enumerate(zip(pg.edges, pg.measurements, pg.information, pg.robust_edges)):
+        fg.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(L)))
+        if not rob:
+            known.append(e)
+    fg.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*pg.poses[0]), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    known.append(fg.size() - 1)
+    init = gtsam.Values()
+    for k, p in enumerate(pg.poses):
+        init.insert(k, gtsam.Pose2(*p))
+    params = gtsam.GncGaussNewtonParams(gtsam.GaussNewtonParams())
+    params.setKnownInliers(known)
+    opt = gtsam.GncGaussNewtonOptimizer(fg, init, params)
+    opt.setInlierCostThresholds(cfg.barc_sq)
+    w0 = np.ones(fg.size())
+    mutual = np.flatnonzero(pg.robust_edges)
+    w0[mutual] = np.asarray(g.init_weights)[np.asarray(g.usable)]
+    opt.setWeights(w0)
+    res = opt.optimize()
+    ref = np.array([[res.atPose2(k).x(), res.atPose2(k).y(), res.atPose2(k).theta()] for k in range(pg.num_nodes)])
+    ours = np.stack([np.asarray(r.poses_a), np.asarray(r.poses_b)], 1).reshape(-1, 3)
+    np.testing.assert_allclose(np.asarray(r.weights)[np.asarray(g.usable)], np.asarray(opt.getWeights())[mutual],
+                               atol=1e-6)
+    np.testing.assert_allclose(ours[:, :2], ref[:, :2], atol=1e-5)
+    np.testing.assert_allclose(_wrap(ours[:, 2] - ref[:, 2]), 0.0, atol=1e-6)
