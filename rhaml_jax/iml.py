@@ -56,23 +56,6 @@ class IMLParams(NamedTuple):
     zoom: tuple | None  # (params, batch_stats) of the zoom-in stage, or None
 
 
-def _heading(out, angle_head: str):
-    """Decoded outputs and how sure the heading's front/back sense is, in [0, 1]: the length of
-    the (cos, sin) vector for a "cossin" head, |lean| (the direction outputs projected on the
-    chosen axis, `amlnet.decode`) for an "axis" head, 1 for a "psi" head (no such signal)."""
-    from rhaml_jax.amlnet import decode
-
-    d = decode(out, angle_head)
-    if angle_head == "cossin":
-        sure = jnp.hypot(out[:, 3], out[:, 4])
-    elif angle_head == "axis":
-        a = 0.5 * jnp.arctan2(out[:, 6], out[:, 5])
-        sure = jnp.abs(out[:, 3] * jnp.cos(a) + out[:, 4] * jnp.sin(a))
-    else:
-        sure = jnp.ones_like(d["psi"])
-    return d, jnp.clip(sure, 0.0, 1.0)
-
-
 def _as_8bit(x):
     """Rounded to whole 8-bit levels, as the host pipeline's OpenCV images are (training saw
     those), with a straight-through gradient (identity) so that derivatives still pass."""
@@ -81,7 +64,8 @@ def _as_8bit(x):
 
 def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     """images (B, H, W, 3) uint8 or float in [0, 255]; K (3, 3) or (B, 3, 3) their intrinsics."""
-    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average
+    from rhaml_jax.amlnet import decode
+    from rhaml_jax.amlnet.zoom import apply_correction, decode_correction, mirror_average
     from rhaml_jax.amlnet.zoom import box as zoom_box
 
     net = model.amlnet
@@ -93,7 +77,7 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     boxes = jax.vmap(lambda k: crop.network_box(k, (W, H), net_K, (w, h)))(K)
     x = _as_8bit(jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes)) / 255.0
     out = net.apply(*params.amlnet, x)
-    d, _ = _heading(out, net.cfg.angle_head)
+    d = decode(out, net.cfg.angle_head)
     xypsi = jnp.stack([d["x"], d["y"], d["psi"]], -1)
     flip = jnp.full((B,), 0.5, xypsi.dtype)  # AMLNet's own heading at CPU size is a guess (README)
     if model.zoom is not None:
@@ -102,15 +86,12 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
         zb = zoom_box(K, xypsi[:, :2], z.cfg)
         crops = _as_8bit(jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb)) / 255.0
 
-        def correct(c):
-            zd, norm = _heading(z.apply(*params.zoom, c), z.cfg.angle_head)
-            return jnp.stack([zd["x"], zd["y"], zd["psi"]], -1), norm
-
-        t, norm = correct(crops)
+        c = decode_correction(z.apply(*params.zoom, crops), z.cfg.angle_head)
+        t, norm = c.as_array(), c.sure
         if model.zoom_mirror:
-            tm, norm_m = correct(crops[:, :, ::-1])
-            t = mirror_average(t, tm)
-            norm = 0.5 * (norm + norm_m)
+            cm = decode_correction(z.apply(*params.zoom, crops[:, :, ::-1]), z.cfg.angle_head)
+            t = mirror_average(t, cm.as_array())
+            norm = 0.5 * (norm + cm.sure)
         xypsi = apply_correction(xypsi[:, :2], t)
         # A regressor torn between a heading and its opposite answers with a short direction
         # vector (their mean is near zero): the shorter, the likelier a flip. A ranking, not a
