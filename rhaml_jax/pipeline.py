@@ -59,6 +59,9 @@ class PipelineConfig:
     pgo_mode: Literal["batch", "online"] = "batch"
     fusion: pgo.FusionConfig = pgo.FusionConfig()
     chunk: int = 32  # frames per network call inside the traced function (bounds activation memory)
+    # batch pgo: calibrate the observations' range error from odometry (pgo.range_model), then
+    # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
+    calibrate_range: bool = True
 
     def __post_init__(self):
         parse_modules(",".join(self.modules))
@@ -99,6 +102,7 @@ class PipelineResult(NamedTuple):
     detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD
     xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
     fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
+    range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)
 
 
 def _chunked(f, xs, chunk: int):
@@ -121,14 +125,21 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
     if "ir" in cfg.modules:
         ir = _refine(model, params, seq, est, detected)
         current = ir
-    xypsi, fusion = current.xypsi, None
+    xypsi, fusion, c = current.xypsi, None, jnp.zeros((2,), current.xypsi.dtype)
     if "pgo" in cfg.modules:
         obs = pgo.observation_from_xy_yaw_rp(current.xypsi, current.roll_pitch)
         rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, obs, seq.a_observes)
-        fuse = pgo.fuse if cfg.pgo_mode == "batch" else pgo.fuse_online
-        fusion = fuse(rv, cfg.fusion, valid=detected, flip_prob=current.flip_prob)
+        if cfg.pgo_mode == "online":
+            fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=current.flip_prob)
+        else:
+            fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=current.flip_prob)
+            if cfg.calibrate_range:
+                used = (fusion.inlier & detected).astype(xypsi.dtype)
+                c = pgo.range_model(rv, fusion.odom_a_T_odom_b, used, cfg.fusion.obs_sigma_xy_m)
+                fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected,
+                                  flip_prob=current.flip_prob)
         xypsi = fusion.relative
-    return PipelineResult(est, ir, detected, xypsi, fusion)
+    return PipelineResult(est, ir, detected, xypsi, fusion, c)
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
