@@ -31,7 +31,7 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
-__all__ = ["MODULES", "PipelineConfig", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
+__all__ = ["MODULES", "PipelineConfig", "fuse_estimates", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
            "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
@@ -127,19 +127,26 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
         current = ir
     xypsi, fusion, c = current.xypsi, None, jnp.zeros((2,), current.xypsi.dtype)
     if "pgo" in cfg.modules:
-        obs = pgo.observation_from_xy_yaw_rp(current.xypsi, current.roll_pitch)
-        rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, obs, seq.a_observes)
-        if cfg.pgo_mode == "online":
-            fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=current.flip_prob)
-        else:
-            fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=current.flip_prob)
-            if cfg.calibrate_range:
-                used = (fusion.inlier & detected).astype(xypsi.dtype)
-                c = pgo.range_model(rv, fusion.odom_a_T_odom_b, used, cfg.fusion.obs_sigma_xy_m)
-                fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected,
-                                  flip_prob=current.flip_prob)
+        fusion, c = fuse_estimates(cfg, current, detected, seq.odom_a, seq.odom_b, seq.a_observes)
         xypsi = fusion.relative
     return PipelineResult(est, ir, detected, xypsi, fusion, c)
+
+
+def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
+    """The pgo module on its own: per-frame estimates (N,) with both odometries (N, 3) ->
+    (pgo.FusionResult, range model c (2,)); batch mode fuses, calibrates the range error
+    (`pgo.range_model`) and fuses again, online mode fuses each frame from those before it."""
+    obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
+    rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
+    c = jnp.zeros((2,), est.xypsi.dtype)
+    if cfg.pgo_mode == "online":
+        return pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob), c
+    fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    if cfg.calibrate_range:
+        used = (fusion.inlier & detected).astype(est.xypsi.dtype)
+        c = pgo.range_model(rv, fusion.odom_a_T_odom_b, used, cfg.fusion.obs_sigma_xy_m)
+        fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    return fusion, c
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:

@@ -7,10 +7,9 @@ Each robot's odometry is in its own odometry frame, which is the frame its map i
 (the map origin is where the odometry started), so B's odometry frame in A's odometry frame,
 which the pose graph returns, is the transform that places B's map in A's.
 
-`estimate_a0_T_b0` is the one step to swap when the full pipeline lands: today its observations
-come from the IML (AMLNet + its zoom-in stage, the shipped checkpoints, `evaluate.evaluate_iml`)
-or, for tests and to separate the localisation's error from the fusion's, from the ground
-truth plus Gaussian noise; the pose graph (`pgo.rhaml_pgo`) fuses them with both odometries.
+`estimate_a0_T_b0` runs the jitted pipeline (`rhaml_jax.pipeline`, modules iml + pgo, the
+shipped checkpoints) on both cameras' images or, for tests and to separate the localisation's
+error from the fusion's, fuses the ground truth plus Gaussian noise with the same pose graph.
 """
 
 from __future__ import annotations
@@ -81,21 +80,27 @@ class RendezvousEstimate:
     frames: int  # frames in the sequence
 
 
-def _iml_observations(seq: Sequence, root: Path, min_probability: float, zoom_mirror: bool):
-    from rhaml_jax.amlnet import load_model, shipped_checkpoint
-    from rhaml_jax.evaluate import check_mirror_symmetric, evaluate_iml
+def _interleaved(seq: Sequence):
+    """Frame order of the pipeline: at time i, A's image (A observes B), then B's (B observes A)."""
+    frames = [f for pair in zip(seq.frames_a, seq.frames_b) for f in pair]
+    a_observes = np.tile([True, False], len(seq.frames_a))
+    rep = lambda x: np.repeat(np.asarray(x, np.float32), 2, axis=0)  # noqa: E731
+    return frames, a_observes, rep(seq.odom_a), rep(seq.odom_b)
 
-    net, params, stats = load_model(shipped_checkpoint("amlnet_cpu"))
-    zoom = load_model(shipped_checkpoint("zoom_cpu"))
+
+def _pipeline(root: Path, zoom_mirror: bool):
+    """The shipped IML, a pipeline with the pgo module, and whether mirroring applies."""
+    from rhaml_jax import iml, pipeline
+    from rhaml_jax.data import bop_model_path, load_bop_model
+
     if zoom_mirror:
         try:
-            check_mirror_symmetric(root)
+            iml.check_mirror_symmetric(load_bop_model(root), bop_model_path(root))
         except RhamlError:
             zoom_mirror = False  # not a left-right symmetric robot: no mirrored crops
-    frames = list(seq.frames_a) + list(seq.frames_b)
-    est, prob, _ = evaluate_iml(frames, net, params, stats, batch=min(32, len(frames)), zoom=zoom, zoom_mirror=zoom_mirror)
-    n = len(seq.frames_a)
-    return est[:n], prob[:n] >= min_probability, est[n:], prob[n:] >= min_probability
+    iml_model, iml_params = iml.load_iml(zoom_mirror=zoom_mirror)
+    model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=("iml", "pgo")))
+    return model, pipeline.PipelineParams(iml_params)
 
 
 def _truth_observations(seq: Sequence, sigma_xy: float, sigma_psi: float, seed: int):
@@ -113,43 +118,49 @@ def estimate_a0_T_b0(sequence: Path, observations: Observations = "iml", *, sigm
                      sigma_psi_deg: float = 2.0, seed: int = 0, min_probability: float = 0.5,
                      zoom_mirror: bool = True) -> RendezvousEstimate:
     """A_0 T B_0 from a rendezvous sequence folder: every frame in which one robot detects the
-    other is a mutual observation, fused with both odometries by Algorithm 1 (`pgo.rhaml_pgo`).
+    other is a mutual observation, fused with both odometries by the pipeline's pose graph
+    (`pipeline.fuse_estimates`: robust fusion, range calibration; the frames in time order, at
+    each time A's image, then B's).
 
     observations: "iml" (the shipped AMLNet + zoom-in stage on the images; a detection is
     o >= min_probability) or "truth" (the BOP ground truth of every frame with the robot in view,
     plus Gaussian noise sigma_xy m, sigma_psi_deg deg; deterministic in `seed`)."""
     import jax.numpy as jnp
 
-    from rhaml_jax import planar
-    from rhaml_jax.pgo import Rendezvous, observation_from_xy_yaw_rp, rhaml_pgo_jit
+    from rhaml_jax import pipeline, planar
+    from rhaml_jax.iml import Estimate
 
     root = Path(sequence)
     seq = read_sequence(root)
+    frames, a_observes, odom_a, odom_b = _interleaved(seq)
     if observations == "iml":
-        est_a, det_a, est_b, det_b = _iml_observations(seq, root, min_probability, zoom_mirror)
+        from rhaml_jax.data import load_rgb
+
+        model, params = _pipeline(root, zoom_mirror)
+        images = np.stack([load_rgb(f.rgb) for f in frames])
+        K = np.stack([f.K for f in frames]).astype(np.float32)
+        res = pipeline.run_jit(model, params, pipeline.Sequence(images, K, odom_a, odom_b, a_observes,
+                                                               np.ones(len(frames), bool)))
+        est, detected, fusion = np.asarray(res.iml.xypsi), np.asarray(res.iml.o) >= min_probability, res.fusion
         source = "iml"
     elif observations == "truth":
         est_a, det_a, est_b, det_b = _truth_observations(seq, sigma_xy, np.radians(sigma_psi_deg), seed)
+        est = np.stack([est_a, est_b], 1).reshape(-1, 3)
+        detected = np.stack([det_a, det_b], 1).reshape(-1)
+        n = len(est)
+        e = Estimate(jnp.asarray(est, jnp.float32), jnp.ones(n), jnp.full(n, 0.5), jnp.zeros((n, 2)))
+        fusion, _ = pipeline.fuse_estimates(pipeline.PipelineConfig(modules=("iml", "pgo")), e, jnp.asarray(detected),
+                                            jnp.asarray(odom_a), jnp.asarray(odom_b), jnp.asarray(a_observes))
         source = f"truth+noise(sigma {100 * sigma_xy:g} cm, {sigma_psi_deg:g} deg)"
     else:
         raise RhamlError(f"observations: expected iml or truth, got {observations!r}")
-    rows, obs, a_obs, who = [], [], [], []
-    for i in range(len(seq.frames_a)):  # time order; at one frame A's observation, then B's
-        for tag, est, det, im in (("A", est_a, det_a, seq.frames_a), ("B", est_b, det_b, seq.frames_b)):
-            if det[i]:
-                rows.append(i)
-                obs.append(est[i])
-                a_obs.append(tag == "A")
-                who.append((tag, int(im[i].im_id)))
-    if not rows:
+    if not detected.any():
         what = "no image in which the IML detects a robot" if observations == "iml" else "no image with a robot in view"
         raise RhamlError(f"{root}: no rendezvous frames ({what} among {len(seq.frames_a)} frames per camera)")
-    idx = np.array([rows[0]] + rows)  # row 0: the graph's A_0, B_0 at the first rendezvous frame
-    rv = Rendezvous(jnp.asarray(seq.odom_a[idx]), jnp.asarray(seq.odom_b[idx]),
-                    observation_from_xy_yaw_rp(jnp.asarray(np.array(obs))), jnp.asarray(np.array(a_obs)))
-    res = rhaml_pgo_jit(rv)
-    keep = np.asarray(res.keep)
-    T = np.asarray(res.odom_a_T_odom_b, np.float64)
+    who = [("A" if a else "B", int(f.im_id)) for f, a in zip(frames, a_observes)]
+    inlier = np.asarray(fusion.inlier)
+    T = np.asarray(fusion.odom_a_T_odom_b, np.float64)
     T = np.array([T[0], T[1], float(planar.wrap_angle(T[2]))])
-    return RendezvousEstimate(T, tuple(w for w, k in zip(who, keep) if k), tuple(w for w, k in zip(who, keep) if not k),
-                              np.array(obs), np.array(a_obs), source, len(seq.frames_a))
+    return RendezvousEstimate(T, tuple(w for w, d, k in zip(who, detected, inlier) if d and k),
+                              tuple(w for w, d, k in zip(who, detected, inlier) if d and not k),
+                              est[detected], a_observes[detected], source, len(seq.frames_a))
