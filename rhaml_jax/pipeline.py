@@ -140,13 +140,19 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
     rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
     c = jnp.zeros((2,), est.xypsi.dtype)
     if cfg.pgo_mode == "online":
-        return pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob), c
+        fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+        seen = jnp.cumsum(detected) > 0  # frame k has had a rendezvous at or before it
+        return fusion._replace(relative=jnp.where(seen[:, None], fusion.relative, est.xypsi)), c
     fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    # guard: a sequence without one usable rendezvous leaves the transform between the odometry
+    # frames undetermined (the fusion answers NaN): keep the stage's own estimates then
+    ok = jnp.any(fusion.inlier & detected)
     if cfg.calibrate_range:
         used = (fusion.inlier & detected).astype(est.xypsi.dtype)
-        c = pgo.range_model(rv, fusion.odom_a_T_odom_b, used, cfg.fusion.obs_sigma_xy_m)
+        F = jnp.where(ok, fusion.odom_a_T_odom_b, 0.0)
+        c = jnp.where(ok, pgo.range_model(rv, F, used, cfg.fusion.obs_sigma_xy_m), 0.0)
         fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected, flip_prob=est.flip_prob)
-    return fusion, c
+    return fusion._replace(relative=jnp.where(ok, fusion.relative, est.xypsi)), c
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:

@@ -140,3 +140,13 @@ def test_sharded_over_eight_devices_equals_one(tmp_path):
         assert run.stdout.split()[-2:] == [str(devices), str(devices)]
         results[devices] = np.load(out)
     np.testing.assert_allclose(results[8], results[1], atol=1e-4)
+
+
+def test_no_rendezvous_keeps_the_stage_estimates(stage):
+    m, p = stage
+    seq = _sequence()._replace(valid=np.zeros(N, bool))
+    for mode in ("batch", "online"):
+        model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode))
+        res = pipeline.run_jit(model, pipeline.PipelineParams(p), seq)
+        assert not bool(res.detected.any())
+        np.testing.assert_allclose(res.xypsi, res.iml.xypsi)
