@@ -141,8 +141,11 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
     c = jnp.zeros((2,), est.xypsi.dtype)
     if cfg.pgo_mode == "online":
         fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
-        seen = jnp.cumsum(detected) > 0  # frame k has had a rendezvous at or before it
-        return fusion._replace(relative=jnp.where(seen[:, None], fusion.relative, est.xypsi)), c
+        # guard: frame k keeps its stage estimate until a rendezvous at or before it, and where
+        # the one-rendezvous graph of the first rows comes out non-finite (seen on row 0 of the
+        # circle under one XLA compilation, not in another: an open numerical issue of fuse_online)
+        ok = (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1)
+        return fusion._replace(relative=jnp.where(ok[:, None], fusion.relative, est.xypsi)), c
     fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry
     # frames undetermined (the fusion answers NaN): keep the stage's own estimates then
