@@ -17,7 +17,7 @@ from rhaml_jax.data import BopFrame, load_rgb, read_tum
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.pipeline import Sequence
 
-__all__ = ["SceneData", "SceneRun", "load_scene", "group_scenes", "run_scenes"]
+__all__ = ["SceneData", "SceneRun", "interleave", "load_scene", "group_scenes", "run_scenes"]
 
 
 class SceneData(NamedTuple):
@@ -79,6 +79,22 @@ def load_scene(frames: list[BopFrame], need_odometry: bool = True, length: int |
     observed = np.array([f.observed for f in frames] + [False] * pad)
     gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames] + [np.zeros(3)] * pad)
     return SceneData(seq, list(frames), gt, observed)
+
+
+def interleave(scene_a: SceneData, scene_b: SceneData) -> SceneData:
+    """A two-robot rendezvous sequence (DESIGN.md section 4: two scenes, one per robot's camera,
+    image i of both taken at time i) as one SceneData of 2N frames in time order, at each time
+    A's image (A observes B) then B's (B observes A); `odom_a` / `odom_b` are A's and B's own
+    odometry in every row (B's scene names B the observer)."""
+    a, b = scene_a.seq, scene_b.seq
+    if a.images.shape[0] != b.images.shape[0]:
+        raise RhamlError(f"rendezvous: the two scenes have {a.images.shape[0]} and {b.images.shape[0]} frames; "
+                         "a rendezvous sequence has one image per time from each robot's camera")
+    both = lambda x, y: np.stack([x, y], 1).reshape((-1,) + np.shape(x)[1:])  # noqa: E731
+    seq = Sequence(both(a.images, b.images), both(a.K, b.K), both(a.odom_a, b.odom_b), both(a.odom_b, b.odom_a),
+                   both(np.ones(len(a.valid), bool), np.zeros(len(b.valid), bool)), both(a.valid, b.valid))
+    frames = [f for pair in zip(scene_a.frames, scene_b.frames) for f in pair]
+    return SceneData(seq, frames, both(scene_a.gt, scene_b.gt), both(scene_a.observed, scene_b.observed))
 
 
 class SceneRun(NamedTuple):
