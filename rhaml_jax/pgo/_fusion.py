@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from ..errors import RhamlError, check_shape
 from ._banded import band_solve
 from ._ladder import ladder_iterate, ladder_normal_equations
 from ._residuals import compose, inverse, poses_to_se2, residuals, retract, se2_to_poses
@@ -422,6 +423,26 @@ def _result(T4, g: FusionGraph, ub0, w, cost, it, solves) -> FusionResult:
     return FusionResult(pa, pb, a0b0[0], F[0], rel, inlier, g.flipped, w, g.deleted, g.consensus, cost, it, solves)
 
 
+def _check_inputs(rv: Rendezvous, valid, flip_prob, obs_sigma, cfg: FusionConfig) -> None:
+    """Shape and config checks at trace time (shapes are static): one RhamlError line each."""
+    if not isinstance(cfg, FusionConfig):
+        raise RhamlError(f"fuse: cfg must be a FusionConfig, got {type(cfg).__name__}")
+    if cfg.information not in ("noise_model", "paper"):
+        raise RhamlError(f"FusionConfig.information: {cfg.information!r} is not one of noise_model, paper")
+    if cfg.robust not in ("gnc_tls", "none"):
+        raise RhamlError(f"FusionConfig.robust: {cfg.robust!r} is not one of gnc_tls, none")
+    K = int(np.shape(rv.observation)[0]) if np.ndim(rv.observation) == 2 else -1
+    check_shape("rendezvous.observation", rv.observation, (None, 7))
+    if K < 1:
+        raise RhamlError("rendezvous: at least one row is needed")
+    check_shape("rendezvous.odom_a", rv.odom_a, (K + 1, 3))
+    check_shape("rendezvous.odom_b", rv.odom_b, (K + 1, 3))
+    check_shape("rendezvous.a_observes", rv.a_observes, (K,))
+    for name, a, shape in (("valid", valid, (K,)), ("flip_prob", flip_prob, (K,)), ("obs_sigma", obs_sigma, (K, 3))):
+        if a is not None:
+            check_shape(name, a, shape)
+
+
 def fuse(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | None = None,
          flip_prob: jax.Array | None = None, obs_sigma: jax.Array | None = None) -> FusionResult:
     """Robust fusion of K rows of odometry and observations (see the module docstring).
@@ -430,6 +451,7 @@ def fuse(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | 
     probability that an observation's heading is turned by 180 deg (None: 0.5); obs_sigma
     (K, 3): per-row observation sigmas (x, y in m, psi in rad; None: the config's). Pure and
     jit-able with `cfg` static (`fuse_jit`), vmappable, differentiable in rv and obs_sigma."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     sg = jax.lax.stop_gradient
     g0 = _graph(jax.tree.map(sg, rv), valid, None if flip_prob is None else sg(flip_prob),
                 None if obs_sigma is None else sg(obs_sigma), cfg)
@@ -466,6 +488,7 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
     `weights` is what the update at row k said about row k; `poses_a`, `poses_b`, `deleted`,
     `consensus`, `final_cost` are the last update's (= `fuse` on everything); `iterations` and
     `solves` are summed over the updates."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     sg = jax.lax.stop_gradient
     K = rv.observation.shape[0]
     base = jnp.ones((K,), bool) if valid is None else jnp.asarray(valid, bool)
@@ -499,6 +522,7 @@ def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None,
     """Host side: the graph `fuse` hands to GNC (after deletion, consensus and flips) as a
     PoseGraph (mutual edges of unusable rows dropped; `robust_edges` marks the mutual ones),
     e.g. for `write_g2o`, GTSAM's GncOptimizer or a plot; plus the device-side FusionGraph."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     g = _graph_jit(jax.tree.map(jnp.asarray, rv), valid, flip_prob, obs_sigma, cfg)
     K = int(g.usable.shape[0])
     keep = np.ones((K, 3), bool)
