@@ -482,7 +482,8 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
     """Online fusion: at each row k, `fuse` on the rendezvous <= k (later rows masked: their
     dangling odometry changes nothing), as one `lax.scan` compiled once for K rows. The
     consensus terms (every candidate against every observation) are computed once and summed
-    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph.
+    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph; rows
+    without a usable observation reuse the last update (under vmap both branches run).
 
     Row k of `relative`, `a0_T_b0` (K, 3), `odom_a_T_odom_b` (K, 3), `inlier`, `flipped` and
     `weights` is what the update at row k said about row k; `poses_a`, `poses_b`, `deleted`,
@@ -505,9 +506,13 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
         return _fuse_graph(rv, base & (rows <= k), obs_sigma, g0, cfg)
 
     def step(last, k):
-        r = update(k)
-        out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k], r.iterations,
-               r.solves)
+        # a row without a usable observation adds nothing (same graph, same consensus scores):
+        # the last update's answer is the batch answer on rows <= k too, no solve needed
+        new = inp.usable[k] | (k == 0)
+        r = jax.lax.cond(new, lambda: update(k), lambda: last)
+        zero = jnp.zeros((), jnp.int32)
+        out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k],
+               jnp.where(new, r.iterations, zero), jnp.where(new, r.solves, zero))
         return r, out
 
     init = jax.eval_shape(update, jnp.asarray(0))
