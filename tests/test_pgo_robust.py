@@ -157,6 +157,9 @@ def test_online_row_k_equals_batch_on_the_first_k_plus_1():
     rv, valid = _dev(seq), jnp.asarray(seq.valid)
     on = fuse_online_jit(rv, CFG, valid)
     batch = fuse_jit(rv, CFG, valid)
+    # rows before the first rendezvous stay finite (nothing links the robots yet)
+    late = fuse_online_jit(rv, CFG, valid & (jnp.arange(K) >= 5))
+    assert np.all(np.isfinite(np.asarray(late.relative))) and not np.any(np.asarray(late.inlier)[:5])
     np.testing.assert_allclose(np.asarray(on.poses_b), np.asarray(batch.poses_b), atol=1e-9)
     np.testing.assert_allclose(np.asarray(on.relative[-1]), np.asarray(batch.relative[-1]), atol=1e-9)
     kv = np.flatnonzero(seq.valid)
@@ -224,3 +227,11 @@ def test_bad_input_one_line_errors():
         fuse_jit(rv, CFG, np.ones(7, bool))
     with pytest.raises(RhamlError, match="FusionConfig.information: 'kappa'"):
         fuse(rv, dataclasses.replace(CFG, information="kappa"))
+
+
+def test_no_usable_rendezvous_stays_finite():
+    seq = simulate_two_robots(K, 3)
+    rv = _dev(seq)._replace(observation=jnp.full((K, 7), jnp.nan))
+    r = fuse_jit(rv, CFG, jnp.zeros(K, bool))
+    assert np.all(np.isfinite(np.asarray(r.relative))) and np.all(np.isfinite(np.asarray(r.a0_T_b0)))
+    assert not np.any(np.asarray(r.inlier)) and np.all(np.asarray(r.weights) == 0)

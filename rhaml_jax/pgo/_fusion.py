@@ -389,7 +389,10 @@ def _robust_solve(g: FusionGraph, cfg: FusionConfig):
     zero = jnp.asarray(0, jnp.int32)
     c = (T0, g.init_weights, mu0.astype(dt), inf, inf, zero, zero, jnp.asarray(False))
     T, w, _, _, cost, it, solves, _ = jax.lax.while_loop(lambda c: ~c[-1], body, c)
-    return T, w, cost, it - 1, solves
+    # guard: no usable observation leaves B undetermined (singular steps): keep the start
+    has = jnp.any(g.usable)
+    T = jnp.where(has & jnp.all(jnp.isfinite(T)), T, T0)
+    return T, w, jnp.where(has, cost, 0.0), it - 1, solves
 
 
 def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
@@ -400,12 +403,13 @@ def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
     q = p._replace(info=p.info * _edge_weights(w)[:, None, None])
     D, Lo, gv, _ = ladder_normal_equations(T, q, g.a_observes, dataclasses.replace(cfg.solver, robust="none"))
     gauge = jnp.zeros((K + 1, 6), bool).at[0, :3].set(True)
-    # guard: with no mutual edge left B's placement is free (H singular); a tiny ridge keeps
-    # the step (zero: g = 0 at the optimum) and its derivative finite
-    ridge = 1e-12 * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny
+    # guard: with no mutual edge B's placement is free (H singular): a unit ridge then keeps
+    # the (masked) step and its derivative finite; otherwise a tiny one
+    has = jnp.any(g.usable)
+    ridge = jnp.where(has, 1e-12 * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny, 1.0)
     D = D + ridge * jnp.eye(6, dtype=D.dtype)
     x = band_solve(D, Lo, -gv[..., None], cfg.solver.band_solver)[..., 0]
-    x = jnp.where(gauge, 0.0, x)
+    x = jnp.where(gauge | ~has, 0.0, x)
     return retract(T, x.reshape(2 * K + 2, 3))
 
 
