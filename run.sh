@@ -13,13 +13,9 @@ shift || true
 case "$what" in
   main)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e .
-    # Until the demo lands (pipeline issue), the main job is the most complete one there is:
-    # render the paper's circle scenario (BOP images + TUM trajectories; a rerun skips what is
-    # complete) and run the shipped AMLNet on it, printing the paper's metrics.
-    echo "rhaml_jax: the demo is not built yet; running the most complete job: AMLNet and its zoom-in stage (IML) on the circle scenario in out/circle" >&2
-    .venv/bin/python -m rhaml_jax.generate --out out/circle --scenario circle
-    # --zoom-mirror: the built-in robot is left-right symmetric (BENCHMARKS.md: ATE 0.31 -> 0.28)
-    exec .venv/bin/python -m rhaml_jax.evaluate --data out/circle --modules iml --zoom-mirror --json out/circle_iml.json "$@"
+    # The main job: generate circle + sine, run IML, IML+IR, IML+PGO, IML+IR+PGO with the shipped
+    # networks, print the paper's Table III layout and write the Fig. 5 / Fig. 6 plots (out/demo).
+    exec .venv/bin/python -m rhaml_jax.demo "$@"
     ;;
   test)
     .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev]'

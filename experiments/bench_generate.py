@@ -20,7 +20,7 @@ import tyro
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.data import training_sample
 from rhaml_jax.data._bop import write_image
-from rhaml_jax.data._writer import write_training_set
+from rhaml_jax.data import write_training_set
 from rhaml_jax.render import as_mesh
 from rhaml_jax.robots import load_robot
 

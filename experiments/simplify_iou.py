@@ -13,7 +13,7 @@ from pathlib import Path
 import tyro
 
 from rhaml_jax.robots import load_robot
-from rhaml_jax.robots._silhouette import silhouette_iou
+from rhaml_jax.robots import silhouette_iou
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "robots"
 

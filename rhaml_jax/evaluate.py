@@ -1,24 +1,26 @@
 """`python -m rhaml_jax.evaluate`: runs the pipeline's modules on a BOP data set and prints the
 paper's metrics (DESIGN.md section 5).
 
-  python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml --json OUT [--amlnet CKPT]
-      [--zoom CKPT | --no-zoom] [--zoom-mirror]
+  python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml[,ir][,pgo] --json OUT
+      [--amlnet CKPT] [--zoom CKPT | --no-zoom] [--zoom-mirror] [--refiner CKPT] [--pgo-mode batch|online]
+      [--paper-information]
 
-Prints one JSON line: mean and std of |dx|, |dy| (cm), |dpsi| (deg) and the ATE (eq. 12) over
-the frames with the robot in view, frames per second, and the detection counts over all frames
-(threshold 0.5 on o); `--json` also writes the per-frame estimates. Every image goes through
-`rhaml_jax.data.network_image` (the network's camera) first, so data sets of other tools and
-other image sizes work. This build runs the `iml` module: AMLNet, then (by default) its zoom-in
-stage on a crop of the full-resolution image around AMLNet's estimate (`rhaml_jax.amlnet.zoom`);
-`ir` (refinement) and `pgo` (pose-graph fusion) come with the pipeline.
+Each scene is one rendezvous sequence (`rhaml_jax.sequence.load_scene`: its images and, for
+pgo, its TUM odometry) and goes through the jitted pipeline (`rhaml_jax.pipeline.run`). Prints a
+table and one JSON line: mean and std of |dx|, |dy| (cm), |dpsi| (deg) and the ATE (eq. 12) over
+the frames with the robot in view, frames per second of the compiled pipeline, and the detection
+counts over all frames (o >= metrics.DETECTION_THRESHOLD); `--json` also writes the per-frame
+estimates. Images of any size and intrinsics are resampled into the networks' camera inside the
+pipeline, so data sets of other tools work.
 """
 
 from __future__ import annotations
 
 import json
-import time
+import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import tyro
@@ -26,9 +28,7 @@ import tyro
 from rhaml_jax.allocator import tune_allocator
 from rhaml_jax.errors import RhamlError, run_cli
 
-__all__ = ["Args", "evaluate_iml", "main"]
-
-MODULES = ("iml", "ir", "pgo")
+__all__ = ["Args", "frame_rows", "main", "run", "score"]
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class Args:
     data: Path
     """BOP data set folder (ours or another tool's)"""
     modules: str = "iml"
-    """comma-separated pipeline modules: iml (AMLNet), ir (refinement), pgo (pose graph)"""
+    """comma-separated pipeline modules: iml (AMLNet + zoom stage), ir (refinement), pgo (pose graph)"""
     scene: int | None = None
     """evaluate only this scene id (default: every scene of every split)"""
     split: str | None = None
@@ -53,133 +53,117 @@ class Args:
     """also run the zoom-in stage on each crop mirrored left-right and average the two answers
     (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
     refiner: Path | None = None
-    """refiner checkpoint folder (the ir module)"""
+    """refiner checkpoint folder (the ir module; default: the shipped refiner_cpu)"""
+    pgo_mode: Literal["batch", "online"] = "batch"
+    """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
+    paper_information: bool = False
+    """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
     batch: int = 32
-    """images per network call"""
+    """frames per network call"""
 
 
-def evaluate_iml(frames, net, params, stats, batch: int = 32, zoom=None,
-                 zoom_mirror: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
-    """AMLNet on BOP frames, then its zoom-in stage if `zoom` = (net, params, batch_stats) is
-    given (with `zoom_mirror`, also on the mirrored crops, see `zoom.mirror_average`):
-    (estimates (N, 3) x, y, psi; o probabilities (N,); seconds per frame)."""
-    import jax
-
-    from rhaml_jax.amlnet import decode
-    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average, zoom_crop
-    from rhaml_jax.data import load_rgb, network_image
-
-    h, w = net.cfg.input_hw
-    predict = jax.jit(lambda p, s, x: decode(net.apply(p, s, x), net.cfg.angle_head))
-    if zoom is not None:
-        znet, zparams, zstats = zoom
-        zpredict = jax.jit(lambda p, s, x: decode(znet.apply(p, s, x), znet.cfg.angle_head))
-    est, prob = [], []
-    seconds = 0.0
-
-    def pad(x):  # one shape for every call
-        return np.concatenate([x, np.zeros((batch - len(x),) + x.shape[1:], x.dtype)])
-
-    for i in range(0, len(frames), batch):
-        chunk = frames[i : i + batch]
-        full = [load_rgb(f.rgb) for f in chunk]
-        t = time.perf_counter()
-        imgs = np.stack([network_image(im, f.K, (h, w)) for im, f in zip(full, chunk)]).astype(np.float32) / 255.0
-        out = jax.device_get(predict(params, stats, pad(imgs)))
-        e = np.stack([out["x"], out["y"], out["psi"]], 1)[: len(chunk)]
-        if zoom is not None:
-            crops = np.stack([zoom_crop(im, f.K, g[:2], znet.cfg) for im, f, g in zip(full, chunk, e)])
-            crops = crops.astype(np.float32) / 255.0
-
-            def correct(c):
-                z = jax.device_get(zpredict(zparams, zstats, pad(c)))
-                return np.stack([z["x"], z["y"], z["psi"]], 1)[: len(chunk)]
-
-            corr = correct(crops)
-            if zoom_mirror:
-                corr = mirror_average(corr, correct(np.ascontiguousarray(crops[:, :, ::-1])))
-            e = apply_correction(e[:, :2], corr)
-        if i:  # the first call compiles
-            seconds += time.perf_counter() - t
-        est.append(e)
-        prob.append(out["o"][: len(chunk)])
-    n_timed = max(len(frames) - min(batch, len(frames)), 0)
-    return np.concatenate(est), np.concatenate(prob), (seconds / n_timed if n_timed else float("nan"))
+def _table(m: dict) -> str:
+    f = lambda v: "-" if v is None else f"{v[0]:.1f} +- {v[1]:.1f}"  # noqa: E731
+    d = m["detection"]
+    ate = "-" if m["ate"] is None else f"{m['ate']:.3f}"
+    fps = "-" if m["fps"] is None else f"{m['fps']:.1f}"
+    return (f"{'+'.join(x.upper() for x in m['modules']):<12} abs dx {f(m['dx_cm'])} cm   abs dy {f(m['dy_cm'])} cm   "
+            f"abs dpsi {f(m['dpsi_deg'])} deg   ATE {ate}   {fps} FPS   "
+            f"detection tp {d['tp']} fp {d['fp']} fn {d['fn']} tn {d['tn']} ({m['frames']} frames)")
 
 
-MAX_MIRROR_SHAPE = 0.02  # of the robot's length
-MAX_MIRROR_COLOUR = 0.05  # of its surface
-
-
-def check_mirror_symmetric(data: Path) -> None:
-    """`--zoom-mirror` averages the pose seen in a crop and in its mirror image: right only for
-    a left-right symmetric robot. Checks the data set's BOP model (RobotModel.mirror_asymmetry)."""
-    import sys
-
-    from rhaml_jax.data import load_bop_model
-    from rhaml_jax.data._bop import MODEL_FILE, OBJ_ID
-
-    path = Path(data) / "models" / MODEL_FILE.format(OBJ_ID)
-    if not path.exists():
-        print(f"rhaml_jax.evaluate: warning: {path} not found: cannot check that the robot is left-right "
-              "symmetric, which --zoom-mirror assumes", file=sys.stderr)
-        return
-    model = load_bop_model(data)
-    shape, colour = model.mirror_asymmetry()
-    length = float(model.extents.max())
-    if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:
-        raise RhamlError(f"--zoom-mirror: the robot model {path} is not left-right symmetric (its mirror image is "
-                         f"{100 * shape:.1f} cm off, {100 * colour:.0f} % of its surface another colour; limits "
-                         f"{100 * MAX_MIRROR_SHAPE:.0f} % of its {100 * length:.0f} cm length and "
-                         f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
-
-
-def run(args: Args) -> dict:
+def score(est: np.ndarray, called: np.ndarray, observed: np.ndarray, gt: np.ndarray) -> dict:
+    """The paper's metrics of per-frame estimates (N, 3) (scored where `observed`, whatever
+    the detection) and the detection counts of `called` against `observed`."""
     from rhaml_jax import metrics
-    from rhaml_jax.amlnet import load_model, shipped_checkpoint
-    from rhaml_jax.data import read_bop
 
-    modules = [m for m in args.modules.split(",") if m]
-    unknown = [m for m in modules if m not in MODULES]
-    if unknown or not modules:
-        raise RhamlError(f"--modules {args.modules}: expected a comma-separated subset of {', '.join(MODULES)}")
-    if modules != ["iml"]:
-        raise RhamlError(f"--modules {args.modules}: this build evaluates iml alone; ir and pgo come with the pipeline")
-    if args.batch < 1:
-        raise RhamlError(f"--batch {args.batch}: must be positive")
-    frames = read_bop(args.data, args.split, args.scene)
-    net, params, stats = load_model(args.amlnet or shipped_checkpoint("amlnet_cpu"))
-    zoom_dir = args.zoom
-    if zoom_dir is None and args.amlnet is None and not args.no_zoom:
-        zoom_dir = shipped_checkpoint("zoom_cpu")  # the shipped AMLNet's own zoom stage
-    zoom = None if args.no_zoom or zoom_dir is None else load_model(zoom_dir)
-    if zoom is not None and zoom[0].cfg.task != "zoom":
-        raise RhamlError(f"--zoom {zoom_dir}: holds a {zoom[0].cfg.name} network, not a zoom-in stage")
-    if args.zoom_mirror:
-        if zoom is None:
-            raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
-        check_mirror_symmetric(args.data)
-    est, prob, s_per_frame = evaluate_iml(frames, net, params, stats, args.batch, zoom, args.zoom_mirror)
-    observed = np.array([f.observed for f in frames])
-    gt = np.array([f.xypsi if f.observed else np.zeros(3) for f in frames])
-    det = prob >= 0.5
     if observed.any():
         s = metrics.summarize(est[observed], gt[observed])
         pose = {k: s[k] for k in ("dx_cm", "dy_cm", "dpsi_deg", "ate")}
     else:
         pose = {"dx_cm": None, "dy_cm": None, "dpsi_deg": None, "ate": None}
-    m = pose | {
-        "fps": 1.0 / s_per_frame if s_per_frame > 0 else None,
-        "detection": {"tp": int((det & observed).sum()), "fp": int((det & ~observed).sum()),
-                      "fn": int((~det & observed).sum()), "tn": int((~det & ~observed).sum())},
-        "detection_accuracy": float((det == observed).mean()),
-        "frames": len(frames), "observed_frames": int(observed.sum()), "modules": modules,
-        "zoom": zoom is not None, "zoom_mirror": args.zoom_mirror,
-    }
-    per_frame = [{"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
-                  "est": [float(v) for v in e] if d else None, "gt": [float(v) for v in g] if f.observed else None}
-                 for f, e, d, g in zip(frames, est, det, gt)]
-    return {"metrics": m, "frames": per_frame}
+    counts = metrics.detection_counts(called.astype(float), observed)
+    return pose | {"detection": counts, "detection_accuracy": float((called == observed).mean()),
+                   "frames": len(observed), "observed_frames": int(observed.sum())}
+
+
+def _check_robot(args: Args, zoom_net) -> None:
+    """The data set's robot must be the one the networks were made for: the zoom stage is sized
+    to its robot's length (`zoom_length_m`); refuses a data set whose model differs by > 15 %."""
+    from rhaml_jax.data import bop_model_path, load_bop_model
+
+    path = bop_model_path(args.data)
+    if not path.exists():
+        print(f"rhaml_jax.evaluate: warning: {path} not found: cannot check the data set's robot "
+              "(its size, its symmetry for --zoom-mirror)", file=sys.stderr)
+        return
+    model = load_bop_model(args.data)
+    if zoom_net is not None:
+        length, want = float(model.extents[0]), float(zoom_net.cfg.zoom_length_m)
+        if abs(length / want - 1) > 0.15:
+            raise RhamlError(f"{path}: this data set's robot is {100 * length:.0f} cm long, but the networks were made "
+                             f"for a {100 * want:.0f} cm robot ({zoom_net.cfg.name}): train networks for this robot "
+                             "(python -m rhaml_jax.train) or pass --amlnet/--zoom checkpoints made for it")
+    if args.zoom_mirror:
+        from rhaml_jax.iml import check_mirror_symmetric
+
+        check_mirror_symmetric(model, path)
+
+
+def _load(args: Args, modules):
+    from rhaml_jax import iml, pgo, pipeline
+
+    iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror)
+    _check_robot(args, iml_model.zoom)
+    refiner = refiner_params = None
+    if "ir" in modules:
+        from rhaml_jax import refine
+
+        refiner, refiner_params = refine.load_stage(args.refiner, args.data)
+    fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
+    cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch)
+    return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
+
+
+def run(args: Args) -> dict:
+    from rhaml_jax import pipeline
+    from rhaml_jax.data import read_bop
+    from rhaml_jax.sequence import group_scenes, run_scenes
+
+    modules = pipeline.parse_modules(args.modules)
+    if args.batch < 1:
+        raise RhamlError(f"--batch {args.batch}: must be positive")
+    frames = read_bop(args.data, args.split, args.scene)
+    model, params = _load(args, modules)
+    runs, compile_s, seconds = run_scenes(model, params, list(group_scenes(frames).values()))
+    m = score(np.concatenate([r.result.xypsi for r in runs]), np.concatenate([r.result.detected for r in runs]),
+              np.concatenate([r.data.observed for r in runs]), np.concatenate([r.data.gt for r in runs]))
+    m |= {"fps": len(frames) / seconds if seconds > 0 else None, "compile_seconds": round(compile_s, 2),
+          "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
+          "scenes": len(runs)}
+    rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
+    if "pgo" in modules:
+        m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
+              "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows))}
+    return {"metrics": m, "frames": rows}
+
+
+def frame_rows(run, fused: bool) -> list[dict]:
+    """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
+    and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    res, data = run.result, run.data
+    rows = []
+    for i, f in enumerate(data.frames):
+        shown = fused or res.detected[i]  # the pose graph places the robot at every frame
+        row = {"scene_id": f.scene_id, "im_id": f.im_id, "observed": bool(f.observed),
+               "est": [float(v) for v in res.xypsi[i]] if shown else None,
+               "gt": [float(v) for v in data.gt[i]] if f.observed else None,
+               "o": float(res.iml.o[i]), "detected": bool(res.detected[i]),
+               "iml_est": [float(v) for v in res.iml.xypsi[i]]}
+        if res.fusion is not None:
+            row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
+        rows.append(row)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -189,6 +173,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(res))
+    print(_table(res["metrics"]), file=sys.stderr)
     print(json.dumps(res["metrics"]))
     return res
 

@@ -56,18 +56,16 @@ class IMLParams(NamedTuple):
     zoom: tuple | None  # (params, batch_stats) of the zoom-in stage, or None
 
 
-def _heading(out, angle_head: str):
-    """psi and the length of the predicted (cos, sin) vector (1 for a psi head)."""
-    from rhaml_jax.amlnet import decode
-
-    d = decode(out, angle_head)
-    norm = jnp.hypot(out[:, 3], out[:, 4]) if angle_head == "cossin" else jnp.ones_like(d["psi"])
-    return d, norm
+def _as_8bit(x):
+    """Rounded to whole 8-bit levels, as the host pipeline's OpenCV images are (training saw
+    those), with a straight-through gradient (identity) so that derivatives still pass."""
+    return x + jax.lax.stop_gradient(jnp.clip(jnp.round(x), 0.0, 255.0) - x)
 
 
 def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     """images (B, H, W, 3) uint8 or float in [0, 255]; K (3, 3) or (B, 3, 3) their intrinsics."""
-    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average
+    from rhaml_jax.amlnet import decode
+    from rhaml_jax.amlnet.zoom import apply_correction, decode_correction, mirror_average
     from rhaml_jax.amlnet.zoom import box as zoom_box
 
     net = model.amlnet
@@ -77,31 +75,29 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     with jax.ensure_compile_time_eval():  # a constant of the model, not a traced value
         net_K = jnp.asarray(DEFAULT_CAMERA.resized(w, h).K, jnp.float32)
     boxes = jax.vmap(lambda k: crop.network_box(k, (W, H), net_K, (w, h)))(K)
-    x = jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes) / 255.0
+    x = _as_8bit(jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes)) / 255.0
     out = net.apply(*params.amlnet, x)
-    d, _ = _heading(out, net.cfg.angle_head)
+    d = decode(out, net.cfg.angle_head)
     xypsi = jnp.stack([d["x"], d["y"], d["psi"]], -1)
     flip = jnp.full((B,), 0.5, xypsi.dtype)  # AMLNet's own heading at CPU size is a guess (README)
     if model.zoom is not None:
         z = model.zoom
         S = z.cfg.input_hw[0]
         zb = zoom_box(K, xypsi[:, :2], z.cfg)
-        crops = jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb) / 255.0
+        crops = _as_8bit(jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb)) / 255.0
 
-        def correct(c):
-            zd, norm = _heading(z.apply(*params.zoom, c), z.cfg.angle_head)
-            return jnp.stack([zd["x"], zd["y"], zd["psi"]], -1), norm
-
-        t, norm = correct(crops)
+        c = decode_correction(z.apply(*params.zoom, crops), z.cfg.angle_head)
+        t, norm = c.as_array(), c.sure
         if model.zoom_mirror:
-            tm, norm_m = correct(crops[:, :, ::-1])
-            t = mirror_average(t, tm)
-            norm = 0.5 * (norm + norm_m)
+            cm = decode_correction(z.apply(*params.zoom, crops[:, :, ::-1]), z.cfg.angle_head)
+            t = mirror_average(t, cm.as_array())
+            norm = 0.5 * (norm + cm.sure)
         xypsi = apply_correction(xypsi[:, :2], t)
-        # A (cos, sin) regressor torn between a heading and its opposite answers with a short
-        # vector (their mean is near zero): the shorter, the likelier a flip. Not calibrated
-        # (BENCHMARKS.md measures how well it ranks flips); 0 for a unit vector, 0.5 at length 0.
-        flip = 0.5 * (1.0 - jnp.clip(norm, 0.0, 1.0))
+        # A regressor torn between a heading and its opposite answers with a short direction
+        # vector (their mean is near zero): the shorter, the likelier a flip. A ranking, not a
+        # calibrated probability (BENCHMARKS.md measures how well it ranks flips): 0 for a
+        # unit vector, 0.5 (no information) at length 0.
+        flip = 0.5 * (1.0 - norm)
     return Estimate(xypsi, d["o"], flip, jnp.zeros((B, 2), xypsi.dtype))
 
 
@@ -112,12 +108,9 @@ MAX_MIRROR_SHAPE = 0.02  # of the robot's length
 MAX_MIRROR_COLOUR = 0.05  # of its surface
 
 
-def check_mirror_symmetric(model_path: Path) -> None:
-    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a BOP model
-    (models/obj_000001.ply) that is not (RobotModel.mirror_asymmetry)."""
-    from rhaml_jax.robots import load_robot
-
-    model = load_robot(str(model_path))
+def check_mirror_symmetric(model, model_path) -> None:
+    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a RobotModel (read
+    from `model_path`) that is not (RobotModel.mirror_asymmetry)."""
     shape, colour = model.mirror_asymmetry()
     length = float(model.extents.max())
     if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:

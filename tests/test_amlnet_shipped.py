@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rhaml_jax.amlnet import decode, get_config, load_model, shipped_checkpoint
-from rhaml_jax.data import OnTheFly
+from rhaml_jax.data import OnTheFly, SynthConfig
 
 # Validation split (BENCHMARKS.md): detection 0.971, mean |dx| 47.6 cm, |dy| 28.1 cm; with 32
 # images the bounds leave room for sampling noise and still fail a model that learned nothing
@@ -36,7 +36,7 @@ def test_shipped_checkpoint_size_and_config(name, config):
 def test_shipped_checkpoint_localises_rendered_robots():
     net, params, stats = load_model(shipped_checkpoint("amlnet_cpu"))
     h, w = net.cfg.input_hw
-    src = OnTheFly("pioneer3dx", w, h, seed=2024, supersample=2)  # as the training images were made
+    src = OnTheFly("pioneer3dx", w, h, seed=2024, cfg=SynthConfig(appearance=None), supersample=2)  # as the training images were made (v1)
     ex = [src.example(i) for i in range(32)]
     imgs = np.stack([e[0] for e in ex]).astype(np.float32) / 255.0
     obs = np.array([e[1] for e in ex]) > 0.5
@@ -60,7 +60,7 @@ def test_shipped_zoom_stage_finds_the_heading():
     znet, zparams, zstats = load_model(shipped_checkpoint("zoom_cpu"))
     assert znet.cfg == get_config("zoom_cpu")
     mesh, cam = as_mesh(load_robot("pioneer3dx")), DEFAULT_CAMERA
-    samples = [training_sample(mesh, cam, 2025, i, negative=False) for i in range(24)]
+    samples = [training_sample(mesh, cam, 2025, i, negative=False, cfg=SynthConfig(appearance=None)) for i in range(24)]  # v1 data
     full = [s.rgb for s in samples]
     gt = np.stack([s.xypsi for s in samples])
     imgs = np.stack([network_image(im, cam.K, net.cfg.input_hw) for im in full]).astype(np.float32) / 255.0

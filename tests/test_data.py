@@ -12,7 +12,7 @@ import pytest
 
 from rhaml_jax import data, planar
 from rhaml_jax.camera import DEFAULT_CAMERA
-from rhaml_jax.data._writer import write_scenario, write_training_set
+from rhaml_jax.data import write_scenario, write_training_set
 from rhaml_jax.errors import RhamlError
 
 SMALL = DEFAULT_CAMERA.resized(160, 120)

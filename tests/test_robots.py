@@ -11,7 +11,7 @@ import pytest
 
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.robots import load_robot
-from rhaml_jax.robots._silhouette import silhouette_iou
+from rhaml_jax.robots import silhouette_iou
 from tests.conftest import shared_path
 
 

@@ -18,7 +18,7 @@ from rhaml_jax.amlnet.config import config_to_dict
 from rhaml_jax.amlnet.zoom import ZoomSource, apply_correction, correction_targets, mirror_average, zoom_crop
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
 from rhaml_jax.data import load_rgb, network_image, read_bop
-from rhaml_jax.data._writer import write_training_set
+from rhaml_jax.data import write_training_set
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.evaluate import main
 

@@ -25,6 +25,7 @@ Host side (NumPy + OpenCV, like the data pipeline): `crop_transform`, `zoom_crop
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 from pathlib import Path
 
 import jax
@@ -42,8 +43,38 @@ from rhaml_jax.planar import range_bearing, wrap_angle
 def _xp(*arrays):
     return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
 
-__all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "box", "correction_targets", "crop_transform", "mirror_average",
+__all__ = ["ZoomCorrection", "ZoomJitter", "ZoomSource", "apply_correction", "box", "decode_correction", "correction_targets", "crop_transform", "mirror_average",
            "zoom_crop", "MIN_RANGE_M"]
+
+class ZoomCorrection(NamedTuple):
+    """The zoom stage's answer for a batch (B,) of crops, relative to the estimate it was
+    cropped around (range r^, bearing b^); `as_array` is t of `apply_correction`."""
+
+    log_range: jax.Array  # log(r / r^)
+    bearing: jax.Array  # b - b^ (rad)
+    heading: jax.Array  # psi - b^ (rad): what the crop shows of the robot's heading
+    sure: jax.Array  # in [0, 1]: how sure its front/back sense is (length of the direction outputs)
+
+    def as_array(self):
+        return jnp.stack([self.log_range, self.bearing, self.heading], -1)
+
+
+def decode_correction(out, angle_head: str) -> ZoomCorrection:
+    """Raw zoom head (B, 4|5|7) -> ZoomCorrection (`amlnet.decode`'s "x", "y", "psi" are these
+    three numbers for a zoom network). `sure` is |lean| for an "axis" head (the direction outputs
+    projected on the chosen axis), the (cos, sin) length for "cossin", 1 for "psi"."""
+    from rhaml_jax.amlnet.loss import decode
+
+    d = decode(out, angle_head)
+    if angle_head == "cossin":
+        sure = jnp.hypot(out[:, 3], out[:, 4])
+    elif angle_head == "axis":
+        a = 0.5 * jnp.arctan2(out[:, 6], out[:, 5])
+        sure = jnp.abs(out[:, 3] * jnp.cos(a) + out[:, 4] * jnp.sin(a))
+    else:
+        sure = jnp.ones_like(d["psi"])
+    return ZoomCorrection(d["x"], d["y"], d["psi"], jnp.clip(sure, 0.0, 1.0))
+
 
 def _range_bearing(xy):
     return range_bearing(xy, min_x=MIN_RANGE_M)

@@ -5,16 +5,20 @@
 - `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets.
 - `read_tum`, `write_tum`: trajectory files.
 - `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
+- `AppearanceConfig`: the v2 appearance randomisation's factors and ranges (`SynthConfig.appearance`;
+  None gives the v1 data); `HeldoutConfig`, `check_heldout`, `write_heldout`: the held-out
+  appearance benchmark, outside every training range; `sample_look`, `sample_heldout_look`: one
+  image's look (a pure function of (seed, index)).
 """
 
-from rhaml_jax.data._bop import BopFrame, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
+from rhaml_jax.data._bop import BopFrame, bop_model_path, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
 from rhaml_jax.data._synth import Sample, SynthConfig, sample_rng, scenario_frame, training_sample
 from rhaml_jax.data._trajectories import Room, circle, noisy_odometry, rendezvous, sine
 from rhaml_jax.data._tum import read_tum, write_tum
 from rhaml_jax.data._writer import write_scenario, write_training_set
 
 __all__ = [
-    "BopFrame", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
+    "BopFrame", "bop_model_path", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
     "noisy_odometry", "read_bop", "read_tum", "rendezvous", "sample_rng", "scenario_frame",
     "scene_folders", "sine", "training_sample", "write_scenario", "write_training_set", "write_tum",
 ]
@@ -27,3 +31,13 @@ from rhaml_jax.data._cache import ImageCache  # noqa: E402
 
 __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]
+
+from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, check_heldout,  # noqa: E402
+                                        deferred_checks, sample_heldout_look, sample_look)
+from rhaml_jax.data._writer import write_heldout  # noqa: E402
+
+__all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "write_heldout"]
+
+from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
+
+__all__ += ["write_sequence"]

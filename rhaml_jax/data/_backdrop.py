@@ -51,15 +51,19 @@ def _skimage(name: str) -> np.ndarray:
     """(H, W, 3) float32 in [0, 1] of a scikit-image bundled image."""
     import skimage.data
 
-    img = np.asarray(getattr(skimage.data, name)())
+    img = getattr(skimage.data, name)()
+    if isinstance(img, tuple):  # stereo pairs: the left image
+        img = img[0]
+    img = np.asarray(img)
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     return img[..., :3].astype(np.float32) / 255.0
 
 
-def photo(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
-    """A random crop of a random bundled photograph, flipped and colour-shifted: (H, W, 3) in [0, 1]."""
-    img = _skimage(PHOTOS[rng.integers(len(PHOTOS))])
+def photo(rng: np.random.Generator, width: int, height: int, names: tuple[str, ...] = PHOTOS) -> np.ndarray:
+    """A random crop of a random bundled photograph (one of `names`), flipped and colour-shifted:
+    (H, W, 3) in [0, 1]."""
+    img = _skimage(names[rng.integers(len(names))])
     h, w = img.shape[:2]
     scale = rng.uniform(0.5, 1.0)
     ch, cw = int(h * scale), int(min(w, h * scale * width / height))
@@ -110,6 +114,31 @@ class Texture:
             fs, ft = gs - i0, gt - j0
             L = lambda i, j: lattice[i % 64, j % 64]  # noqa: E731
             w = (L(i0, j0) * (1 - fs) + L(i0 + 1, j0) * fs) * (1 - ft) + (L(i0, j0 + 1) * (1 - fs) + L(i0 + 1, j0 + 1) * fs) * ft
+        elif self.kind == "wood":  # rings around a far centre, wobbled by a sine
+            u = s * np.cos(self.angle) + t * np.sin(self.angle)
+            r = np.hypot(u + 7.0 * p, 0.3 * (t * np.cos(self.angle) - s * np.sin(self.angle)))
+            w = (0.5 + 0.5 * np.sin(2 * np.pi * (r / (0.2 * p)) + 2.0 * np.sin(u / p))).astype(np.float32)
+        elif self.kind == "dots":  # polka dots on a square lattice
+            fs, ft = (s / p) % 1.0 - 0.5, (t / p) % 1.0 - 0.5
+            w = (np.hypot(fs, ft) < 0.3).astype(np.float32)
+        elif self.kind == "marble":  # veins: a sine of a coordinate plus lattice noise
+            g = np.random.default_rng(self.seed).random((32, 32)).astype(np.float32)
+            turb = g[(s / p * 4).astype(np.int64) % 32, (t / p * 4).astype(np.int64) % 32]
+            u = s * np.cos(self.angle) + t * np.sin(self.angle)
+            w = (np.abs(np.sin(np.pi * (u / p + 1.5 * turb))) ** 0.3).astype(np.float32)
+        elif self.kind == "voronoi":  # cells of the nearest random site (Worley), one colour mix per cell
+            rng = np.random.default_rng(self.seed)
+            site, mix = rng.random((64, 64, 2)).astype(np.float32), rng.random((64, 64)).astype(np.float32)
+            gs, gt = s / p, t / p
+            i0, j0 = np.floor(gs).astype(np.int64), np.floor(gt).astype(np.int64)
+            best = np.full(s.shape, np.inf, np.float32)
+            w = np.zeros(s.shape, np.float32)
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    i, j = (i0 + di) % 64, (j0 + dj) % 64
+                    d = (i0 + di + site[i, j, 0] - gs) ** 2 + (j0 + dj + site[i, j, 1] - gt) ** 2
+                    closer = d < best
+                    best, w = np.where(closer, d, best), np.where(closer, mix[i, j], w)
         elif self.kind == "photo":
             img = _skimage(self.photo)
             h, w_ = img.shape[:2]
@@ -121,19 +150,21 @@ class Texture:
         return c0 * (1 - w[..., None]) + c1 * w[..., None]
 
 
-KINDS = ("solid", "checker", "stripes", "tiles", "noise", "photo")
+KINDS = ("solid", "checker", "stripes", "tiles", "noise", "photo")  # what the v1 data draws
 
 
-def sample_texture(rng: np.random.Generator) -> Texture:
+def sample_texture(rng: np.random.Generator, kinds: tuple[str, ...] = KINDS, photos: tuple[str, ...] = TEXTURES) -> Texture:
+    """A random texture of one of `kinds`; a photo texture shows one of `photos` (the defaults
+    are the v1 data's, whose draws they reproduce)."""
     colors = rng.uniform(0.05, 0.95, (2, 3))
     if rng.random() < 0.5:  # often muted, like real rooms
         colors = 0.5 * colors + 0.5 * colors.mean(axis=1, keepdims=True)
     return Texture(
-        kind=KINDS[rng.integers(len(KINDS))],
+        kind=kinds[rng.integers(len(kinds))],
         colors=tuple(map(tuple, colors.astype(float))),
         period=float(np.exp(rng.uniform(np.log(0.1), np.log(2.0)))),
         angle=float(rng.uniform(0, np.pi)),
-        photo=TEXTURES[rng.integers(len(TEXTURES))],
+        photo=photos[rng.integers(len(photos))],
         seed=int(rng.integers(2**31)),
     )
 
@@ -156,11 +187,11 @@ def sample_room(rng: np.random.Generator, bounds, height: float | None = None) -
     return RoomLook(tuple(float(b) for b in bounds), h, tuple(sample_texture(rng) for _ in range(6)))
 
 
-def room_image(room: RoomLook, light: Light, K: np.ndarray, width: int, height: int, observer_xypsi, camera_height: float):
-    """The room seen by the observer's camera: (rgb (H, W, 3) float32 in [0, 1], depth (H, W) metres).
+def room_surfaces(room: RoomLook, K: np.ndarray, width: int, height: int, observer_xypsi, camera_height: float):
+    """Where each pixel's ray leaves the room: (depth t (H, W) along the optical axis, face index
+    (H, W) int8 into floor, ceiling, walls x0, x1, y0, y1, world points (px, py, pz) (H, W) each).
 
-    Depth is along the optical axis, as the renderer's. The camera must be inside the room.
-    """
+    The camera must be inside the room."""
     x0, x1, y0, y1 = room.bounds
     ox, oy, opsi = (float(v) for v in observer_xypsi)
     u = ((np.arange(width, dtype=np.float32) - K[0, 2]) / K[0, 0])[None, :]  # (1, W) optical x / z
@@ -183,8 +214,31 @@ def room_image(room: RoomLook, light: Light, K: np.ndarray, width: int, height: 
             better = (sign * d > 0) & (tf < t)
             t = np.where(better, tf, t)
             face = np.where(better, np.int8(f), face)
-    px, py, pz = o[0] + dx * t, o[1] + dy * t, o[2] + dz * t
-    normals = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], np.float32)
+    return t, face, (o[0] + dx * t, o[1] + dy * t, o[2] + dz * t)
+
+
+ROOM_NORMALS = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], np.float32)
+
+
+def room_albedo(room: RoomLook, face: np.ndarray, points) -> np.ndarray:
+    """The textures' colours at the surface points: (H, W, 3) float32 (unshaded)."""
+    px, py, pz = points
+    st = [(px, py), (px, py), (py, pz), (py, pz), (px, pz), (px, pz)]  # surface coordinates (m)
+    out = np.zeros(face.shape + (3,), np.float32)
+    for f in range(6):
+        sel = face == f
+        if np.any(sel):
+            out[sel] = room.textures[f](st[f][0][sel], st[f][1][sel])
+    return out
+
+
+def room_image(room: RoomLook, light: Light, K: np.ndarray, width: int, height: int, observer_xypsi, camera_height: float):
+    """The room seen by the observer's camera: (rgb (H, W, 3) float32 in [0, 1], depth (H, W) metres).
+
+    Depth is along the optical axis, as the renderer's. The camera must be inside the room.
+    """
+    t, face, (px, py, pz) = room_surfaces(room, K, width, height, observer_xypsi, camera_height)
+    normals = ROOM_NORMALS
     # Surface coordinates of each face, in metres.
     st = [(px, py), (px, py), (py, pz), (py, pz), (px, pz), (px, pz)]
     rgb = np.zeros((height, width, 3), np.float32)

@@ -304,12 +304,17 @@ def load_mask(path: Path) -> np.ndarray:
     return img > 127
 
 
+def bop_model_path(root: Path, obj_id: int = OBJ_ID) -> Path:
+    """Where a BOP data set keeps its object's model (models/obj_000001.ply)."""
+    return Path(root) / "models" / MODEL_FILE.format(obj_id)
+
+
 def load_bop_model(root: Path, obj_id: int = OBJ_ID):
     """The data set's model (BOP: millimetres) as a RobotModel in metres; checks the units."""
     from rhaml_jax.robots import RobotModel
-    from rhaml_jax.robots._meshio import load_mesh_parts
+    from rhaml_jax.robots import load_mesh_parts
 
-    path = Path(root) / "models" / MODEL_FILE.format(obj_id)
+    path = bop_model_path(root, obj_id)
     parts = load_mesh_parts(path)
     size = max(np.ptp(np.concatenate([v for v, _, _ in parts]), axis=0))
     if size < 10.0:

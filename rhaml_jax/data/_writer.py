@@ -14,7 +14,7 @@ from rhaml_jax.camera import Camera, T_cam_robot
 from rhaml_jax.data import _trajectories as traj
 from rhaml_jax.data._backdrop import sample_light, sample_room
 from rhaml_jax.data._bop import write_dataset_header, write_frame, write_scene_json
-from rhaml_jax.data._synth import SynthConfig, sample_rng, scenario_frame, training_sample
+from rhaml_jax.data._synth import SynthConfig, sample_rng, scenario_frame, scenario_frame_v2, training_sample, training_sample_v2
 from rhaml_jax.data._tum import write_tum
 from rhaml_jax.frames import se3_from_xypsi
 
@@ -64,13 +64,17 @@ class Job:
     num: int  # positives come first: global index < num
     items: tuple[tuple[int, str, int], ...]  # (global index, scene folder, im_id)
     cfg: SynthConfig
+    heldout: object = None  # a HeldoutConfig: the held-out benchmark's look
 
 
 def _run_training_job(job: Job) -> list[tuple[str, int, dict]]:
     mesh = _mesh(job.robot, job.max_faces)
     records = []
     for index, folder, im_id in job.items:
-        s = training_sample(mesh, job.camera, job.seed, index, negative=index >= job.num, cfg=job.cfg)
+        if job.heldout is None:
+            s = training_sample(mesh, job.camera, job.seed, index, negative=index >= job.num, cfg=job.cfg)
+        else:
+            s = training_sample_v2(mesh, job.camera, job.seed, index, negative=index >= job.num, cfg=job.cfg, heldout=job.heldout)
         T_w2c = np.asarray(T_cam_robot(s.camera_height).as_matrix(), np.float64)
         T_m2c = T_w2c @ np.asarray(se3_from_xypsi(s.xypsi).as_matrix(), np.float64) if s.observed else None
         records.append((folder, im_id, write_frame(Path(folder), job.camera, im_id, s.rgb, T_w2c, T_m2c, s.mask_visib, s.mask_all)))
@@ -90,17 +94,22 @@ def _progress(total: int, label: str):
 
 
 def write_training_set(out: Path, robot: str, camera: Camera, seed: int, num: int, negatives: int, workers: int = 2,
-                       chunk: int = 25, max_faces: int | None = None, cfg: SynthConfig = SynthConfig()) -> dict:
-    """A BOP training set of `num` robot images and `negatives` background-only images."""
+                       chunk: int = 25, max_faces: int | None = None, cfg: SynthConfig = SynthConfig(),
+                       heldout=None) -> dict:
+    """A BOP training set of `num` robot images and `negatives` background-only images.
+
+    With `heldout` (a HeldoutConfig), the held-out benchmark's random-pose images instead, all
+    in split `test`."""
     from rhaml_jax.robots import load_robot
 
     out = Path(out)
     write_dataset_header(out, load_robot(robot, max_faces), camera)
     items = []
-    for split, indices in layout(num, negatives).items():
+    splits = layout(num, negatives) if heldout is None else {"test": list(range(num + negatives))}
+    for split, indices in splits.items():
         for k, index in enumerate(indices):
             items.append((index, str(out / split / f"{k // SCENE_SIZE:06d}"), k % SCENE_SIZE))
-    _run(items, lambda chunk_items: Job(robot, max_faces, camera, seed, num, chunk_items, cfg), _run_training_job,
+    _run(items, lambda chunk_items: Job(robot, max_faces, camera, seed, num, chunk_items, cfg, heldout), _run_training_job,
          workers, robot, max_faces, "rendering", chunk)
     return {"images": len(items), "positives": num, "negatives": negatives, "out": str(out)}
 
@@ -162,6 +171,8 @@ class ScenarioJob:
     seed: int
     room_bounds: tuple[float, float, float, float]
     frames: tuple[tuple[int, str, int, tuple, tuple], ...]  # (key, folder, im_id, observer pose, observed pose), world frame
+    heldout: object = None  # a HeldoutConfig: the held-out benchmark's look
+    look_index: int = 0  # which held-out look (one per scenario)
 
 
 def _scene_look(seed: int, bounds):
@@ -169,12 +180,28 @@ def _scene_look(seed: int, bounds):
     return sample_room(rng, bounds, height=2.8), sample_light(rng)
 
 
+def _heldout_scene_look(mesh, job: ScenarioJob):
+    """The held-out room and look of a scenario: one draw for all its frames."""
+    from rhaml_jax.data._appearance import color_groups, sample_heldout_look
+    from rhaml_jax.data._backdrop import RoomLook
+
+    groups, _ = color_groups(np.asarray(mesh.face_colors))
+    look = sample_heldout_look(job.heldout, job.seed, 2**31 + job.look_index, groups)
+    return RoomLook(tuple(float(b) for b in job.room_bounds), 2.8, look.textures), look
+
+
 def _run_scenario_job(job: ScenarioJob):
     mesh = _mesh(job.robot, job.max_faces)
-    room, light = _scene_look(job.seed, job.room_bounds)
+    if job.heldout is None:
+        room, light = _scene_look(job.seed, job.room_bounds)
+    else:
+        room, look = _heldout_scene_look(mesh, job)
     records = []
     for _, folder, im_id, obs, tgt in job.frames:
-        rgb, visib, rel, seen = scenario_frame(mesh, job.camera, room, light, obs, tgt)
+        if job.heldout is None:
+            rgb, visib, rel, seen = scenario_frame(mesh, job.camera, room, light, obs, tgt)
+        else:
+            rgb, visib, rel, seen = scenario_frame_v2(mesh, job.camera, room, look, obs, tgt, frame_seed=im_id)
         h = 0.30
         T_w2c = np.asarray(T_cam_robot(h).as_matrix(), np.float64)
         T_m2c = T_w2c @ np.asarray(se3_from_xypsi(rel).as_matrix(), np.float64) if seen else None
@@ -200,25 +227,69 @@ def scenario_poses(name: str, frames: int, seed: int):
     raise RhamlError(f"--scenario: unknown scenario {name!r} (expected circle, sine or rendezvous)")
 
 
-def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
-                   chunk: int = 25, max_faces: int | None = None) -> dict:
-    """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4)."""
+def write_sequence(out: Path, scenes, bounds, robot: str, camera: Camera, seed: int, workers: int = 2, chunk: int = 25,
+                   max_faces: int | None = None, timestamps=None, label: str = "rendering", heldout=None,
+                   look_index: int = 0) -> int:
+    """Renders scenes given by their poses into a BOP data set (split `test`) with the four TUM files
+    per scene; returns the number of frames with the robot in view.
+
+    scenes: [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odometry (N, 3),
+    observed odometry (N, 3))], truth in a common world frame whose room has `bounds`
+    (x0, x1, y0, y1) and its look drawn from `seed` (and `look_index`); `timestamps` (N,) s
+    (default 10 per second); with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
     from rhaml_jax.robots import load_robot
 
     out = Path(out)
     write_dataset_header(out, load_robot(robot, max_faces), camera)
-    scenes, bounds = scenario_poses(name, frames, seed)
     items = []
     for scene_id, observer, observed, odo_observer, odo_observed in scenes:
         folder = out / "test" / f"{scene_id:06d}"
         folder.mkdir(parents=True, exist_ok=True)
         # Static observer scenarios: the world is the observer's frame (identity on every line).
-        write_tum(folder / "observer_groundtruth.txt", observer)
-        write_tum(folder / "observed_groundtruth.txt", observed)
-        write_tum(folder / "observer_odometry.txt", odo_observer)
-        write_tum(folder / "observed_odometry.txt", odo_observed)
-        items += [(i, str(folder), tuple(observer[i]), tuple(observed[i])) for i in range(frames)]
-    items = [(i, folder, i, obs, tgt) for i, folder, obs, tgt in items]  # (key, folder, im_id, ...)
-    seen = _run(items, lambda chunk_items: ScenarioJob(robot, max_faces, camera, seed, bounds, chunk_items), _run_scenario_job,
-                workers, robot, max_faces, f"rendering {name}", chunk)
+        write_tum(folder / "observer_groundtruth.txt", observer, timestamps)
+        write_tum(folder / "observed_groundtruth.txt", observed, timestamps)
+        write_tum(folder / "observer_odometry.txt", odo_observer, timestamps)
+        write_tum(folder / "observed_odometry.txt", odo_observed, timestamps)
+        items += [(i, str(folder), i, tuple(observer[i]), tuple(observed[i])) for i in range(len(observer))]
+    return _run(items, lambda chunk_items: ScenarioJob(robot, max_faces, camera, seed, tuple(bounds), chunk_items, heldout,
+                                                       look_index), _run_scenario_job, workers, robot, max_faces, label, chunk)
+
+
+def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
+                   chunk: int = 25, max_faces: int | None = None, heldout=None) -> dict:
+    """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4);
+    with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
+    scenes, bounds = scenario_poses(name, frames, seed)
+    seen = write_sequence(out, scenes, bounds, robot, camera, seed, workers, chunk, max_faces, label=f"rendering {name}",
+                          heldout=heldout, look_index=("circle", "sine", "rendezvous").index(name))
     return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
+
+
+HELDOUT_PARTS = ("circle", "sine", "background", "random")
+
+
+def write_heldout(out: Path, robot: str, camera: Camera, seed: int, frames: int = 500, random: int = 500, background: int = 100,
+                  workers: int = 2, max_faces: int | None = None, heldout=None, appearance=None) -> dict:
+    """The held-out appearance benchmark: four BOP data sets under `out`, `circle` and `sine`
+    (DESIGN.md scenarios, `frames` each), `background` (`background` frames without the robot)
+    and `random` (`random` robot frames at training-like random poses), all rendered with the
+    held-out settings of `heldout` (see rhaml_jax.data._appearance), checked to lie outside
+    `appearance`'s training ranges first. Nothing may train or tune on it."""
+    from rhaml_jax.data._appearance import AppearanceConfig, HeldoutConfig, check_heldout
+
+    heldout = HeldoutConfig() if heldout is None else heldout
+    appearance = AppearanceConfig() if appearance is None else appearance
+    check_heldout(appearance, heldout)
+    out = Path(out)
+    cfg = SynthConfig(appearance=appearance)
+    res = {}
+    for name in ("circle", "sine"):
+        if frames:
+            res[name] = write_scenario(out / name, name, robot, camera, seed, frames, workers, max_faces=max_faces, heldout=heldout)
+    if background:
+        res["background"] = write_training_set(out / "background", robot, camera, seed + 1, 0, background, workers, max_faces=max_faces,
+                                               cfg=cfg, heldout=heldout)
+    if random:
+        res["random"] = write_training_set(out / "random", robot, camera, seed + 2, random, 0, workers, max_faces=max_faces, cfg=cfg,
+                                           heldout=heldout)
+    return {"heldout": str(out), "parts": res}

@@ -15,7 +15,9 @@ from rhaml_jax.robots._model import RobotModel
 from rhaml_jax.robots._pioneer import BUILTIN
 from rhaml_jax.robots._urdf import load_urdf
 
-__all__ = ["RobotModel", "load_robot", "BUILTIN_ROBOTS"]
+from rhaml_jax.robots._silhouette import silhouette_iou
+
+__all__ = ["RobotModel", "load_robot", "load_mesh_parts", "silhouette_iou", "BUILTIN_ROBOTS"]
 
 BUILTIN_ROBOTS = tuple(BUILTIN)
 

@@ -165,13 +165,10 @@ class RobotModel:
         )
 
     def simplify(self, max_faces: int) -> "RobotModel":
-        """A model of at most about `max_faces` faces that keeps the silhouette.
-
-        Each connected piece of each part is decimated on its own (quadric error), with a share
-        of the budget proportional to its face count: decimating the whole mesh at once lets
-        large pieces eat the budget and collapses thin ones (the TurtleBot3's standoffs). A
-        piece whose share is too small for a closed shape becomes its convex hull.
-        """
+        """A model of at most about `max_faces` faces that keeps the silhouette: vertices merged
+        on a grid whose cell size is found by bisection, each cell keeping its outermost vertex,
+        so no vertex leaves the bounding box and the outline moves by at most a cell
+        (`robots._simplify`; quadric decimation was measured to destroy thin parts)."""
         from rhaml_jax.robots._simplify import simplify_model
 
         return simplify_model(self, max_faces)

@@ -1,0 +1,53 @@
+"""Table III (module ablation) on our circle + sine and on the held-out appearance set, with
+both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
+
+  python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N]
+
+Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ours", required=True)
+    ap.add_argument("--heldout")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--combos", nargs="+", default=["iml", "iml,pgo"])
+    ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario (default: all)")
+    a = ap.parse_args()
+    from rhaml_jax import iml, pgo, tune_allocator
+
+    tune_allocator()
+    from rhaml_jax.data import read_bop
+    from rhaml_jax.demo import run_combination
+    from rhaml_jax.sequence import group_scenes
+
+    iml_model, iml_params = iml.load_iml(zoom_mirror=True)
+    sets = {"ours": Path(a.ours)} | ({"heldout": Path(a.heldout)} if a.heldout else {})
+    out = {"rows": []}
+    for set_name, root in sets.items():
+        scenes = [s[: a.frames] for name in ("circle", "sine") for s in group_scenes(read_bop(root / name)).values()]
+        for combo in a.combos:
+            mods = tuple(combo.split(","))
+            infos = ["noise_model", "paper"] if "pgo" in mods else [None]
+            for info in infos:
+                fusion = pgo.FusionConfig(information=info) if info else None
+                t = time.perf_counter()
+                m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion)
+                row = {"set": set_name, "modules": combo, "information": info, **m,
+                       "wall_seconds": round(time.perf_counter() - t, 1)}
+                print(json.dumps(row), flush=True)
+                out["rows"].append(row)
+                Path(a.out).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

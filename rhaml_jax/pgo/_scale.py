@@ -1,0 +1,82 @@
+"""The observations' range error, calibrated from odometry.
+
+An image-based localiser reads ranges with an error that every frame shares (the robot's size
+misjudged: another camera, another paint, BENCHMARKS.md), and that grows with the range (the
+shipped IML reads 1 % long at 2.7 m and 5 % at 6.4 m on our circle). No pose graph that trusts
+its observations' ranges can remove that: a rigid transform between the odometry frames cannot
+stretch a trajectory. Wheel odometry is metric, though, and over a sequence in which the
+observed robot moves, its path's extent fixes the range error. Model, with rho the observed
+and r the true range (both about the observer):
+
+    rho = r exp(c_0 + c_1 (r - R0)),      R0 = 4.5 m (the middle of the scenarios' ranges)
+
+fitted with the transform F = odom_A T odom_B by Gauss-Newton on the observations' x, y
+(predicted by odometry and F) over the rows the robust fusion kept, with priors c_0 ~ N(0, 0.1^2)
+and c_1 ~ N(0, (0.05 / m)^2) that keep the correction near zero where the path does not tell.
+By default only the scale c_0 is fitted (`slope=False`): for a static observer and a path that
+runs mostly towards and away from it (the sine) a translation of F along the line of sight and
+the slope c_1 explain the same errors (measured: the sine's fit then read c_0 = 0.050 for a
+true 0.025; BENCHMARKS.md, "Pipeline").
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from rhaml_jax.planar import between, compose
+
+from ._rhaml_graph import Rendezvous, _planar
+
+__all__ = ["RANGE_R0_M", "range_model", "rescale_observations"]
+
+RANGE_R0_M = 4.5
+
+
+def _log_ratio(c, r):
+    return c[0] + c[1] * (r - RANGE_R0_M)
+
+
+def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, obs_sigma_m: float = 0.1,
+                prior_sigma=(0.1, 0.05), slope: bool = False, iterations: int = 8) -> jax.Array:
+    """(2,) coefficients c of rho = r exp(c_0 + c_1 (r - R0)) from rows with `weights` (K,) (e.g.
+    the fusion's inliers), starting from the fused transform between the odometry frames (3,);
+    c_1 = 0 unless `slope`. Pure JAX, fixed iteration count, differentiable."""
+    z = _planar(rv.observation)[:, 2:]  # (K, 2) observed x, y
+    oa, ob = rv.odom_a[1:], rv.odom_b[1:]
+    w = jnp.sqrt(jnp.asarray(weights, z.dtype))[:, None] / obs_sigma_m
+    nc = 2 if slope else 1
+    prior = jnp.asarray(prior_sigma[:nc], z.dtype)
+
+    def coefficients(theta):
+        return theta[3:] if slope else jnp.concatenate([theta[3:], jnp.zeros((1,), theta.dtype)])
+
+    def residuals(theta):  # theta = (F_x, F_y, F_psi, c_0[, c_1])
+        B = compose(theta[:3], ob)
+        rel = jnp.where(rv.a_observes[:, None], between(oa, B), between(B, oa))[:, :2]
+        r = jnp.sqrt(jnp.sum(rel**2, -1) + 1e-12)  # guard: finite gradient with the robots at one spot
+        pred = rel * jnp.exp(_log_ratio(coefficients(theta), r))[:, None]
+        return jnp.concatenate([(w * (z - pred)).reshape(-1), theta[3:] / prior])
+
+    def step(theta, _):
+        J = jax.jacfwd(residuals)(theta)  # (2K + nc, 3 + nc)
+        r = residuals(theta)
+        H = J.T @ J + 1e-9 * jnp.eye(3 + nc, dtype=J.dtype)  # guard: the priors keep H positive definite
+        return theta - jnp.linalg.solve(H, J.T @ r), None
+
+    theta0 = jnp.concatenate([odom_a_T_odom_b, jnp.zeros((nc,), odom_a_T_odom_b.dtype)])
+    theta, _ = jax.lax.scan(step, theta0, None, length=iterations)
+    return coefficients(theta)
+
+
+def rescale_observations(rv: Rendezvous, c: jax.Array, iterations: int = 6) -> Rendezvous:
+    """The rendezvous with every observation's x, y moved to the range r the model says it
+    saw (rho = r exp(c_0 + c_1 (r - R0)) solved by fixed-point iteration, a contraction for
+    |c_1| R0 < 1), bearings and headings kept."""
+    xy = rv.observation[:, 4:6]
+    rho = jnp.sqrt(jnp.sum(xy**2, -1) + 1e-12)
+    r = rho
+    for _ in range(iterations):
+        r = rho * jnp.exp(-_log_ratio(c, r))
+    obs = rv.observation.at[:, 4:6].set(xy * (r / rho)[:, None])
+    return rv._replace(observation=obs)

@@ -1,0 +1,189 @@
+"""The RHAML pipeline (the paper's Algorithm 2) as one pure function over a rendezvous sequence.
+
+    run(model, params, seq) -> PipelineResult          (run_jit: the shared compiled form)
+
+A `Sequence` holds N frames, each one camera image in which one robot may see the other, with
+both robots' odometry at that instant (static shapes: pad with `valid` False). The modules,
+chosen in `PipelineConfig.modules` as the paper's flexible architecture allows, are
+
+- `iml`: AMLNet and its zoom-in stage on every frame (`rhaml_jax.iml.localize`);
+- `ir`: render-and-compare refinement of every detected frame (`rhaml_jax.refine`);
+- `pgo`: the robust pose graph over the detected frames with both odometries
+  (`rhaml_jax.pgo.fuse`: batch, the whole sequence, as the paper evaluates; or
+  `pgo.fuse_online`: frame k fused from frames <= k only, compiled once for the length N).
+
+Everything between the images and the fused poses is traced: the function jits, vmaps over
+sequences (same N), shards over devices (`shard_sequences`) and differentiates end to end
+(gradients reach the networks' parameters through the pose graph). Image decoding and files
+stay on the host (`rhaml_jax.sequence`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from rhaml_jax import pgo
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
+from rhaml_jax.metrics import DETECTION_THRESHOLD
+
+__all__ = ["MODULES", "PipelineConfig", "fuse_estimates", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
+           "parse_modules", "run", "run_jit", "shard_sequences"]
+
+MODULES = ("iml", "ir", "pgo")
+
+
+def parse_modules(text: str) -> tuple[str, ...]:
+    """'iml,ir,pgo' -> ('iml', 'ir', 'pgo'), or a clear error (unknown, repeated, or without iml)."""
+    mods = tuple(m.strip() for m in text.split(",") if m.strip())
+    unknown = [m for m in mods if m not in MODULES]
+    if unknown:
+        raise RhamlError(f"--modules {text}: unknown module {unknown[0]!r} (expected a comma-separated subset of "
+                         f"{', '.join(MODULES)})")
+    if len(set(mods)) != len(mods):
+        raise RhamlError(f"--modules {text}: names a module twice")
+    if "iml" not in mods:
+        raise RhamlError(f"--modules {text}: the pipeline starts with iml (IR and PGO refine its estimates)")
+    return tuple(m for m in MODULES if m in mods)
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Which modules run and how the pose graph fuses them (static under jit)."""
+
+    modules: tuple[str, ...] = ("iml", "pgo")
+    pgo_mode: Literal["batch", "online"] = "batch"
+    fusion: pgo.FusionConfig = pgo.FusionConfig()
+    chunk: int = 32  # frames per network call inside the traced function (bounds activation memory)
+    # batch pgo: calibrate the observations' range error from odometry (pgo.range_model), then
+    # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
+    calibrate_range: bool = True
+
+    def __post_init__(self):
+        parse_modules(",".join(self.modules))
+        if self.pgo_mode not in ("batch", "online"):
+            raise RhamlError(f"pgo_mode {self.pgo_mode!r}: expected 'batch' or 'online'")
+        if self.chunk < 1:
+            raise RhamlError(f"chunk {self.chunk}: must be positive")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PipelineModel:
+    """Static part: the stages' definitions and the config (hashed by identity: a jit static argument)."""
+
+    iml: IMLModel
+    config: PipelineConfig = PipelineConfig()
+    refiner: object | None = None  # refine stage (rhaml_jax.refine), needed when "ir" is in the modules
+
+
+class PipelineParams(NamedTuple):
+    iml: IMLParams
+    refiner: object | None = None  # the refiner's arrays (or None: alignment only / no IR)
+
+
+class Sequence(NamedTuple):
+    """N frames of a rendezvous sequence (one image each, time order)."""
+
+    images: jax.Array  # (N, H, W, 3) uint8 RGB
+    K: jax.Array  # (N, 3, 3) intrinsics of each image
+    odom_a: jax.Array  # (N, 3) robot A's odometry (x, y, psi) when the frame was taken
+    odom_b: jax.Array  # (N, 3) robot B's odometry
+    a_observes: jax.Array  # (N,) bool: the image is A's camera's (B observed); False: B's camera (A observed)
+    valid: jax.Array  # (N,) bool: a real frame (False: padding to a static length)
+
+
+class PipelineResult(NamedTuple):
+    iml: Estimate  # (N,) IML's estimates
+    ir: Estimate | None  # (N,) after refinement (None without "ir")
+    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD
+    xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
+    fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
+    range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)
+
+
+def _chunked(f, xs, chunk: int):
+    """f over the leading axis of the pytree xs, `chunk` frames per call (lax.map)."""
+    n = jax.tree.leaves(xs)[0].shape[0]
+    return jax.lax.map(f, xs, batch_size=min(chunk, n))
+
+
+def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> PipelineResult:
+    cfg = model.config
+
+    def one(frame):
+        images, K = frame
+        e = localize(model.iml, params.iml, images[None], K[None])
+        return jax.tree.map(lambda a: a[0], e)
+
+    est = _chunked(one, (seq.images, seq.K), cfg.chunk)
+    detected = seq.valid & (est.o >= DETECTION_THRESHOLD)
+    current, ir = est, None
+    if "ir" in cfg.modules:
+        ir = _refine(model, params, seq, est, detected)
+        current = ir
+    xypsi, fusion, c = current.xypsi, None, jnp.zeros((2,), current.xypsi.dtype)
+    if "pgo" in cfg.modules:
+        fusion, c = fuse_estimates(cfg, current, detected, seq.odom_a, seq.odom_b, seq.a_observes)
+        xypsi = fusion.relative
+    return PipelineResult(est, ir, detected, xypsi, fusion, c)
+
+
+def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
+    """The pgo module on its own: per-frame estimates (N,) with both odometries (N, 3) ->
+    (pgo.FusionResult, range model c (2,)); batch mode fuses, calibrates the range error
+    (`pgo.range_model`) and fuses again, online mode fuses each frame from those before it."""
+    obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
+    rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
+    c = jnp.zeros((2,), est.xypsi.dtype)
+    if cfg.pgo_mode == "online":
+        fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+        seen = jnp.cumsum(detected) > 0  # frame k has had a rendezvous at or before it
+        return fusion._replace(relative=jnp.where(seen[:, None], fusion.relative, est.xypsi)), c
+    fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    # guard: a sequence without one usable rendezvous leaves the transform between the odometry
+    # frames undetermined (the fusion answers NaN): keep the stage's own estimates then
+    ok = jnp.any(fusion.inlier & detected)
+    if cfg.calibrate_range:
+        used = (fusion.inlier & detected).astype(est.xypsi.dtype)
+        F = jnp.where(ok, fusion.odom_a_T_odom_b, 0.0)
+        c = jnp.where(ok, pgo.range_model(rv, F, used, cfg.fusion.obs_sigma_xy_m), 0.0)
+        fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    return fusion._replace(relative=jnp.where(ok, fusion.relative, est.xypsi)), c
+
+
+def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
+    """IR on every frame (the refiner declines where the estimate cannot be refined; frames
+    not detected keep IML's estimate)."""
+    if model.refiner is None:
+        raise RhamlError("modules include ir but the pipeline has no refiner (load one with rhaml_jax.refine)")
+    from rhaml_jax import refine
+
+    def one(frame):
+        image, K, e = frame
+        return refine.refine_estimate(model.refiner, params.refiner, image, K, e)
+
+    out = _chunked(one, (seq.images, seq.K, est), model.config.chunk)
+    keep = detected & ~out.declined
+    pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+    return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(out.flip_prob, est.flip_prob),
+                    pick(out.roll_pitch, est.roll_pitch))
+
+
+run_jit = jax.jit(run, static_argnums=0)
+
+
+def shard_sequences(seqs: Sequence, devices=None) -> Sequence:
+    """Places a batch of sequences (leading axis S, as `jax.vmap(run, ...)` takes them) across
+    devices along S (S must be a multiple of the device count); run the vmapped pipeline on the
+    result and XLA keeps each device's sequences on it."""
+    devices = jax.devices() if devices is None else devices
+    S = jax.tree.leaves(seqs)[0].shape[0]
+    if S % len(devices):
+        raise RhamlError(f"{S} sequences cannot be split evenly over {len(devices)} devices")
+    mesh = jax.sharding.Mesh(devices, ("seq",))
+    spec = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seq"))
+    return jax.device_put(seqs, spec)

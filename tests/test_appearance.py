@@ -1,0 +1,206 @@
+"""Appearance randomisation (data v2) and the held-out appearance benchmark: every factor is a
+pure function of (seed, index) inside its documented range; the held-out settings never occur
+in training draws; bad ranges and overlapping held-out settings fail with one line (exit 2)."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rhaml_jax import data
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.data._appearance import TRAINING_LIGHTING, color_groups
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.render import as_mesh
+from rhaml_jax.robots import load_robot
+
+SMALL = DEFAULT_CAMERA.resized(160, 120)
+CFG, HELD = data.AppearanceConfig(), data.HeldoutConfig()
+GROUPS = color_groups(load_robot("pioneer3dx").face_colors)[0]  # the built-in robot's 6 part colours
+N_DRAWS = 3000
+
+
+def _looks(seed: int, n: int):
+    return [data.sample_look(CFG, seed, i, GROUPS) for i in range(n)]
+
+
+def _same(a: data.Look, b: data.Look) -> bool:
+    return all(np.array_equal(np.asarray(x), np.asarray(y)) if not isinstance(x, tuple) else x == y
+               for x, y in zip(dataclasses.astuple(a), dataclasses.astuple(b)))
+
+
+def _inside(v, r, tol=1e-9):
+    return r[0] - tol <= v <= r[1] + tol
+
+
+def _light(rgb):
+    """(strength, saturation) of a light colour hsv(h, s, 1) * strength."""
+    hi = float(np.max(rgb))
+    return hi, (1.0 - float(np.min(rgb)) / hi) if hi > 0 else 0.0
+
+
+def _in_heldout_band(hsv, held: data.HeldoutConfig) -> np.ndarray:
+    """(...,) whether colours (..., 3) are of the held-out part colouring (hue band, saturation)."""
+    h, s = hsv[..., 0] % 360, hsv[..., 1]
+    return (h >= held.part_hue_deg[0]) & (h <= held.part_hue_deg[1]) & (s >= held.part_saturation[0])
+
+
+def test_every_factor_is_pure_and_inside_its_range():
+    looks = _looks(11, N_DRAWS)
+    again = [data.sample_look(CFG, 11, i, GROUPS) for i in (0, 7, N_DRAWS - 1)]
+    assert all(_same(a, looks[i]) for a, i in zip(again, (0, 7, N_DRAWS - 1)))
+    assert not _same(looks[0], looks[1]) and not _same(looks[0], data.sample_look(CFG, 12, 0, GROUPS))
+    for lk in looks:
+        assert lk.part_hsv.shape == (len(GROUPS), 3)
+        assert np.all((lk.part_hsv[:, 1:] >= 0) & (lk.part_hsv[:, 1:] <= 1))
+        assert lk.lighting in CFG.lighting
+        for rgb, r in ((lk.ambient_rgb, CFG.ambient), (lk.sun_rgb, CFG.sun)):
+            strength, sat = _light(rgb)
+            assert _inside(strength, r) and (strength == 0 or _inside(sat, CFG.light_saturation))
+        strength, sat = _light(lk.flash_rgb)
+        assert strength == 0 or (lk.lighting == "sun+flash" and _inside(strength, CFG.flash) and _inside(sat, CFG.light_saturation))
+        assert _inside(np.arcsin(lk.sun_dir[2]), CFG.sun_elevation_rad) and np.isclose(np.linalg.norm(lk.sun_dir), 1)
+        assert all(_inside(v, CFG.flash_offset_m) for v in lk.flash_offset) and _inside(lk.flash_falloff, CFG.flash_falloff)
+        assert _inside(lk.specular, CFG.specular) and _inside(lk.shininess, CFG.shininess)
+        assert lk.shadow_strength == 0 or _inside(lk.shadow_strength, CFG.shadow_strength)
+        assert _inside(lk.shadow_blur_px, CFG.shadow_blur_px) and _inside(lk.contact_strength, CFG.contact_strength)
+        assert _inside(lk.exposure_stops, CFG.exposure_stops) and all(_inside(g, CFG.white_balance) for g in lk.white_balance)
+        assert _inside(lk.gamma, CFG.gamma) and _inside(lk.vignette, CFG.vignette) and _inside(lk.noise, CFG.noise)
+        assert lk.defocus_px == 0 or _inside(lk.defocus_px, CFG.defocus_px)
+        assert lk.motion_px == 0 or _inside(lk.motion_px, CFG.motion_px)
+        assert lk.jpeg_quality == 0 or _inside(lk.jpeg_quality, CFG.jpeg_quality)
+        assert all(t.kind in CFG.texture_kinds and t.photo in CFG.texture_photos for t in lk.textures)
+        assert lk.backdrop_photo in CFG.backdrop_photos
+    # The probabilities show up as frequencies (each factor is actually drawn).
+    coloured = data._appearance.rgb_to_hsv(GROUPS)[:, 1] > 0  # the red and yellow parts (the others are grey)
+    grey = np.mean([np.mean(lk.part_hsv[coloured, 1] == 0) for lk in looks])
+    assert abs(grey - CFG.part_grey_prob) < 0.03
+    assert abs(np.mean([lk.jpeg_quality > 0 for lk in looks]) - CFG.jpeg_prob) < 0.05
+    assert abs(np.mean([lk.shadow_strength > 0 for lk in looks]) - CFG.shadow_prob) < 0.05
+    assert {t.kind for lk in looks for t in lk.textures} == set(CFG.texture_kinds)
+
+
+def test_heldout_settings_never_occur_in_training():
+    groups = np.concatenate([GROUPS, [[0.1, 0.8, 0.8], [0.0, 0.7, 0.6]]])  # also a robot painted cyan / teal
+    train = [data.sample_look(CFG, s, i, groups) for s in (0, 1) for i in range(N_DRAWS // 2)]
+    held = [data.sample_heldout_look(HELD, s, i, GROUPS) for s in (0, 1) for i in range(200)]
+    # The held-out looks are what the definition says ...
+    assert all(lk.lighting == HELD.lighting and np.all(_in_heldout_band(lk.part_hsv, HELD)) for lk in held)
+    assert all(_inside(_light(lk.sky_rgb)[1], HELD.light_saturation) for lk in held)
+    assert all(t.kind in HELD.texture_kinds and (t.kind != "photo" or t.photo in HELD.texture_photos) for lk in held for t in lk.textures)
+    # Only the stated factors are held out: the camera's ranges lie inside training's, and its draws inside them.
+    for f in ("exposure_stops", "white_balance", "gamma", "vignette", "defocus_px", "motion_px", "noise", "jpeg_quality"):
+        assert _inside(getattr(HELD.camera, f)[0], getattr(CFG, f)) and _inside(getattr(HELD.camera, f)[1], getattr(CFG, f)), f
+    assert all(_inside(lk.exposure_stops, HELD.camera.exposure_stops) and _inside(lk.gamma, HELD.camera.gamma) for lk in held)
+    assert all(lk.defocus_px == 0 or _inside(lk.defocus_px, HELD.camera.defocus_px) for lk in held)
+    # ... and no training draw has any of them: lighting model, light saturation, part colouring,
+    # texture family, photographs (walls or backdrops), robot-like distractors' colours.
+    for lk in train:
+        assert lk.lighting != HELD.lighting and lk.lighting in TRAINING_LIGHTING
+        assert all(_light(c)[1] < HELD.light_saturation[0] for c in (lk.ambient_rgb, lk.sun_rgb, lk.flash_rgb))
+        assert not np.any(_in_heldout_band(lk.part_hsv, HELD)) and not np.any(_in_heldout_band(lk.distractor_hsv, HELD))
+        assert not any(t.kind in set(HELD.texture_kinds) - {"photo"} or t.photo in HELD.texture_photos for t in lk.textures)
+        assert lk.backdrop_photo not in HELD.backdrop_photos
+    # The cyan parts of the model were moved out of the band, not kept.
+    assert any(np.any(lk.part_hsv[-2:, 1] > 0.5) for lk in train)
+
+
+@pytest.mark.parametrize("field,value,msg", [
+    ("ambient", (0.7, 0.1), "AppearanceConfig.ambient: range (0.7, 0.1) is inverted"),
+    ("texture_kinds", (), "AppearanceConfig.texture_kinds: expected a non-empty list"),
+    ("part_value", (0.0, 1.5), "AppearanceConfig.part_value: range (0.0, 1.5) leaves its bounds"),
+    ("jpeg_prob", 1.5, "AppearanceConfig.jpeg_prob: 1.5 is not a probability"),
+    ("texture_kinds", ("solid", "velvet"), "unknown texture kind(s) ['velvet']"),
+    ("gamma", (float("nan"), 1.0), "AppearanceConfig.gamma: expected a range (lo, hi) of two finite numbers"),
+])
+def test_bad_ranges_raise_one_line(field, value, msg):
+    with pytest.raises(RhamlError, match=None) as e:
+        data.AppearanceConfig(**{field: value})
+    assert msg in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("train,held,msg", [
+    ({}, {"part_hue_deg": (140.0, 180.0)}, "HeldoutConfig.part_hue_deg"),
+    ({"hue_exclude_deg": (170.0, 180.0)}, {}, "HeldoutConfig.part_hue_deg"),
+    ({}, {"part_saturation": (0.1, 0.9)}, "HeldoutConfig.part_saturation"),
+    ({"light_saturation": (0.0, 0.5)}, {}, "HeldoutConfig.light_saturation"),
+    ({"texture_kinds": ("solid", "voronoi")}, {}, "HeldoutConfig.texture_kinds: ['voronoi']"),
+    ({"backdrop_photos": ("astronaut", "stereo_motorcycle")}, {}, "HeldoutConfig.texture_photos: ['stereo_motorcycle']"),
+    ({"lighting": ("sun",)}, {"lighting": "sun"}, "HeldoutConfig.lighting: 'sun' is a training lighting model"),
+])
+def test_heldout_overlapping_training_is_rejected(train, held, msg):
+    with pytest.raises(RhamlError) as e:
+        data.check_heldout(data.AppearanceConfig(**train), data.HeldoutConfig(**held))
+    assert msg in str(e.value) and "\n" not in str(e.value)
+    data.check_heldout(CFG, HELD)  # the defaults are disjoint
+
+
+@pytest.mark.parametrize("flags,msg", [
+    (["--ranges.gamma", "1.2", "0.9"], "AppearanceConfig.gamma: range (1.2, 0.9) is inverted"),
+    (["--heldout", "--heldout-ranges.part-hue-deg", "100", "180"], "HeldoutConfig.part_hue_deg"),
+])
+def test_generate_rejects_bad_appearance_with_exit_2(tmp_path, flags, msg):
+    r = subprocess.run([sys.executable, "-m", "rhaml_jax.generate", "--out", str(tmp_path / "x"), *flags],
+                       capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "x").exists()
+
+
+def test_v2_images_are_pure_and_v1_images_unchanged():
+    mesh = as_mesh(load_robot("pioneer3dx"))
+    a = data.training_sample(mesh, SMALL, 5, 2)
+    b = data.training_sample(mesh, SMALL, 5, 2)
+    assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.mask_visib, b.mask_visib) and a.observed
+    # v1 (the shipped checkpoints' data): the pixels main makes without data v2 (checked at 392354e).
+    v1 = data.SynthConfig(appearance=None)
+    h = hashlib.sha1()
+    for i in range(3):
+        s = data.training_sample(mesh, SMALL, 7, i, cfg=v1)
+        h.update(s.rgb.tobytes()), h.update(s.mask_visib.tobytes())
+    assert h.hexdigest() == V1_DIGEST
+
+
+V1_DIGEST = "8adf93c594e071e41885e502d861b94edb4977bc"  # sha1 of 3 images at 160 x 120 (seed 7), computed on main at 392354e
+
+
+def test_heldout_benchmark_layout(tmp_path):
+    out = data.write_heldout(tmp_path / "h", "pioneer3dx", SMALL, seed=3, frames=4, random=3, background=2, workers=1)
+    assert set(out["parts"]) == {"circle", "sine", "background", "random"}
+    counts = {k: [f.observed for f in data.read_bop(tmp_path / "h" / k, None)] for k in out["parts"]}
+    assert len(counts["circle"]) == len(counts["sine"]) == 4 and counts["background"] == [False, False]
+    assert counts["random"] == [True] * 3
+    assert {f.split for f in data.read_bop(tmp_path / "h" / "random", None)} == {"test"}
+    assert (tmp_path / "h" / "circle" / "test" / "000000" / "observed_odometry.txt").exists()
+
+
+def test_robot_like_distractors_have_their_documented_sizes():
+    from rhaml_jax.data._synth import distractor_mesh_v2
+
+    colors = np.zeros((4, 2, 3))
+    seen = 0
+    for i in range(40):
+        rng = np.random.default_rng(i)
+        v, f, c = distractor_mesh_v2(rng, 4, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0, CFG.cart_length_m)
+        assert v.shape == distractor_mesh_v2(np.random.default_rng(99), 0, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0,
+                                             CFG.cart_length_m)[0].shape  # one shape: one compilation
+        used = v[v[:, 0] > -100]
+        assert np.array_equal(v, distractor_mesh_v2(np.random.default_rng(i), 4, 4, None, 0.3, (1.0, 6.0, -3.0, 3.0), colors, 1.0,
+                                                    CFG.cart_length_m)[0])  # a pure function of the generator
+        per_slot = len(v) // 4
+        for k in range(4):
+            s = v[k * per_slot:(k + 1) * per_slot]
+            s = s[s[:, 0] > -100]
+            if len(s):
+                seen += 1
+                assert s[:, 2].min() >= -1e-6  # on the floor
+                d = np.linalg.norm(s[:, None, :2] - s[None, :, :2], axis=-1).max()  # footprint diameter, any yaw
+                # body length L in cart_length_m; wheels reach 1.3 L x 1.2 L at most
+                assert CFG.cart_length_m[0] - 1e-6 <= d <= np.hypot(1.3, 1.2) * CFG.cart_length_m[1] + 1e-6
+        assert len(used)
+    assert seen > 100

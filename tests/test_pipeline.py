@@ -1,0 +1,152 @@
+"""The jitted pipeline: equals its stages called one by one, compiles once per shape, is
+differentiable through the pose graph, shards over devices, and refuses bad input clearly."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rhaml_jax import iml, pgo, pipeline, planar
+from rhaml_jax.amlnet import build, get_config
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.errors import RhamlError
+
+N, H, W = 6, 48, 64
+
+
+def _biased(params, offset):
+    """Head biases moved so that a random network calls the robot in view ~3 m ahead."""
+    return jax.tree_util.tree_map_with_path(
+        lambda p, v: v + offset if jax.tree_util.keystr(p) == "['head']['b'].value" else v, params)
+
+
+def _stage():
+    net, znet = build(get_config("micro"), jax.random.key(1)), build(get_config("tiny_zoom"), jax.random.key(2))
+    params = iml.IMLParams((_biased(net.params, jnp.array([6.0, 3.0, 0.0, 0.0])), net.batch_stats),
+                           (znet.params, znet.batch_stats))
+    return iml.IMLModel(net, znet, zoom_mirror=True), params
+
+
+@pytest.fixture(scope="module")
+def stage():
+    return _stage()
+
+
+def _sequence(seed=0, n=N):
+    rng = np.random.default_rng(seed)
+    images = rng.integers(0, 256, (n, H, W, 3), dtype=np.uint8)
+    K = np.repeat(np.asarray(DEFAULT_CAMERA.resized(W, H).K, np.float32)[None], n, 0)
+    t = np.linspace(0, 1, n)
+    odom_b = np.stack([3 + 0.5 * np.sin(t), 0.3 * t, 0.2 * t], 1).astype(np.float32)
+    return pipeline.Sequence(images, K, np.zeros((n, 3), np.float32), odom_b, np.ones(n, bool), np.ones(n, bool))
+
+
+def test_pipeline_equals_its_stages(stage):
+    m, p = stage
+    seq = _sequence()
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), chunk=4))
+    res = pipeline.run_jit(model, pipeline.PipelineParams(p), seq)
+    est = iml.localize_jit(m, p, seq.images, seq.K)
+    np.testing.assert_allclose(res.iml.xypsi, est.xypsi, atol=1e-4)
+    assert bool(res.detected.all())
+    obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
+    rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, obs, seq.a_observes)
+    ref = pgo.fuse_jit(rv, pgo.FusionConfig(), valid=jnp.ones(N, bool), flip_prob=est.flip_prob)
+    np.testing.assert_allclose(res.xypsi, ref.relative, atol=1e-3)
+    # frames without a detection are no rendezvous: the graph then follows the odometry there
+    invalid = seq._replace(valid=np.arange(N) < N - 2)
+    res2 = pipeline.run_jit(model, pipeline.PipelineParams(p), invalid)
+    assert not bool(res2.detected[-2:].any()) and bool(jnp.all(jnp.isfinite(res2.xypsi)))
+
+
+def test_compiles_once_per_shape(stage):
+    m, p = stage
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml",)))
+    traces = []
+
+    def counted(model, params, seq):  # runs once per compilation (jit traces, then caches)
+        traces.append(seq.images.shape)
+        return pipeline.run(model, params, seq)
+
+    f = jax.jit(counted, static_argnums=0)
+    f(model, pipeline.PipelineParams(p), _sequence(0))
+    f(model, pipeline.PipelineParams(p), _sequence(1))
+    assert len(traces) == 1
+    f(model, pipeline.PipelineParams(p), _sequence(2, n=N + 1))
+    assert len(traces) == 2
+
+
+def test_gradient_reaches_amlnet_through_the_pose_graph(stage):
+    m, p = stage
+    seq = _sequence()
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), chunk=N))
+    truth = jnp.asarray(seq.odom_b)
+
+    def loss(amlnet_params):
+        params = pipeline.PipelineParams(iml.IMLParams((amlnet_params, p.amlnet[1]), p.zoom))
+        r = pipeline.run(model, params, seq)
+        d = planar.between(truth, r.xypsi)
+        return jnp.sum(d[:, :2] ** 2) + 0.1 * jnp.sum(d[:, 2] ** 2)
+
+    g = jax.jit(jax.grad(loss))(p.amlnet[0])
+    leaves = jax.tree.leaves(g)
+    assert all(bool(jnp.all(jnp.isfinite(v))) for v in leaves)
+    assert sum(float(jnp.abs(v).sum()) for v in leaves) > 0
+
+
+def test_modules_and_config_errors(stage):
+    assert pipeline.parse_modules("pgo,iml") == ("iml", "pgo")
+    for bad, msg in (("iml,iml", "twice"), ("iml,nope", "unknown module 'nope'"), ("pgo", "starts with iml")):
+        with pytest.raises(RhamlError, match=msg):
+            pipeline.parse_modules(bad)
+    with pytest.raises(RhamlError, match="pgo_mode"):
+        pipeline.PipelineConfig(pgo_mode="sometimes")
+    with pytest.raises(RhamlError, match="no refiner"):
+        m, p = stage
+        pipeline.run(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "ir"))),
+                     pipeline.PipelineParams(p), _sequence())
+
+
+SHARD_SCRIPT = textwrap.dedent("""
+    import jax, numpy as np
+    import tests.test_pipeline as t
+    from rhaml_jax import pipeline
+    m, p = t._stage()
+    seqs = jax.tree.map(lambda *a: np.stack(a), *[t._sequence(s, n=4) for s in range(8)])
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo")))
+    f = jax.jit(jax.vmap(lambda s: pipeline.run(model, pipeline.PipelineParams(p), s).xypsi))
+    out = f(pipeline.shard_sequences(seqs))
+    print(len(jax.devices()), len(out.sharding.device_set))
+    np.save("{out}", np.asarray(out))
+""")
+
+
+def test_sharded_over_eight_devices_equals_one(tmp_path):
+    results = {}
+    for devices in (1, 8):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}",
+                   PYTHONPATH=os.pathsep.join([os.getcwd(), os.environ.get("PYTHONPATH", "")]))
+        out = tmp_path / f"out{devices}.npy"
+        run = subprocess.run([sys.executable, "-c", SHARD_SCRIPT.format(out=out)], env=env, capture_output=True,
+                             text=True, timeout=600)
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert run.stdout.split()[-2:] == [str(devices), str(devices)]
+        results[devices] = np.load(out)
+    np.testing.assert_allclose(results[8], results[1], atol=1e-4)
+
+
+def test_no_rendezvous_keeps_the_stage_estimates(stage):
+    m, p = stage
+    seq = _sequence()._replace(valid=np.zeros(N, bool))
+    for mode in ("batch", "online"):
+        model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode))
+        res = pipeline.run_jit(model, pipeline.PipelineParams(p), seq)
+        assert not bool(res.detected.any())
+        np.testing.assert_allclose(res.xypsi, res.iml.xypsi)
