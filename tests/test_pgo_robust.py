@@ -14,11 +14,13 @@ import numpy as np
 import pytest
 
 from rhaml_jax.data import circle, sine
+from rhaml_jax.errors import RhamlError
 from rhaml_jax.metrics import ate
 from rhaml_jax.pgo import (
     FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fusion_graph, observation_from_xy_yaw_rp,
     odometry_information, simulate_static_observer, simulate_two_robots,
 )
+from rhaml_jax.pgo._fusion import _inputs
 
 K = 40
 CFG = FusionConfig()
@@ -118,14 +120,15 @@ def test_roll_pitch_deletion_and_paper_information():
     deleted[[4, 9]] = True
     np.testing.assert_array_equal(np.asarray(r.deleted), deleted)
     np.testing.assert_array_equal(np.asarray(r.inlier), ~deleted)
-    # eqs. 9-10 with information="paper"
+    # eqs. 9-10 with information="paper" (the per-row inputs alone: a small compile)
     paper = dataclasses.replace(CFG, information="paper", kappa=80.0, tau=0.25)
-    _, g = fusion_graph(jax.tree.map(jnp.asarray, rv), paper)
-    info = np.asarray(g.information).reshape(K, 3, 3, 3)
-    np.testing.assert_allclose(info[:, 0], np.broadcast_to(80.0 * np.eye(3), (K, 3, 3)))
+    inp = jax.jit(_inputs, static_argnums=4)(jax.tree.map(jnp.asarray, rv), None, None, None, paper)
+    i_a, i_b, i_m = (np.asarray(x) for x in inp.info)
+    np.testing.assert_allclose(i_a, 80.0)
+    np.testing.assert_allclose(i_b, 80.0)
     km = 40.0 * np.exp(-np.deg2rad(5.0))
-    np.testing.assert_allclose(info[7, 2], np.diag([km, km, 0.25 * km]), rtol=1e-9)
-    assert np.all(info[[4, 9], 2] == 0)
+    np.testing.assert_allclose(i_m[7], [km, km, 0.25 * km], rtol=1e-9)
+    np.testing.assert_array_equal(np.asarray(inp.usable), ~deleted)
 
 
 def test_gradient_through_fuse_is_finite_nonzero_and_matches_finite_differences():
@@ -154,6 +157,9 @@ def test_online_row_k_equals_batch_on_the_first_k_plus_1():
     rv, valid = _dev(seq), jnp.asarray(seq.valid)
     on = fuse_online_jit(rv, CFG, valid)
     batch = fuse_jit(rv, CFG, valid)
+    # rows before the first rendezvous stay finite (nothing links the robots yet)
+    late = fuse_online_jit(rv, CFG, valid & (jnp.arange(K) >= 5))
+    assert np.all(np.isfinite(np.asarray(late.relative))) and not np.any(np.asarray(late.inlier)[:5])
     np.testing.assert_allclose(np.asarray(on.poses_b), np.asarray(batch.poses_b), atol=1e-9)
     np.testing.assert_allclose(np.asarray(on.relative[-1]), np.asarray(batch.relative[-1]), atol=1e-9)
     kv = np.flatnonzero(seq.valid)
@@ -208,3 +214,24 @@ def test_matches_gtsam_gnc_optimizer_on_the_same_graph():
                                atol=1e-6)
     np.testing.assert_allclose(ours[:, :2], ref[:, :2], atol=1e-5)
     np.testing.assert_allclose(_wrap(ours[:, 2] - ref[:, 2]), 0.0, atol=1e-6)
+
+
+def test_bad_input_one_line_errors():
+    seq = simulate_static_observer(circle(8), 0)
+    rv = seq.rendezvous
+    with pytest.raises(RhamlError, match=r"rendezvous.odom_b: expected shape \(9, 3\)"):
+        fuse(rv._replace(odom_b=rv.odom_b[:-1]))
+    with pytest.raises(RhamlError, match=r"obs_sigma: expected shape \(8, 3\)"):
+        fuse(rv, CFG, obs_sigma=np.ones((8, 2)))
+    with pytest.raises(RhamlError, match="valid: expected shape"):
+        fuse_jit(rv, CFG, np.ones(7, bool))
+    with pytest.raises(RhamlError, match="FusionConfig.information: 'kappa'"):
+        fuse(rv, dataclasses.replace(CFG, information="kappa"))
+
+
+def test_no_usable_rendezvous_stays_finite():
+    seq = simulate_two_robots(K, 3)
+    rv = _dev(seq)._replace(observation=jnp.full((K, 7), jnp.nan))
+    r = fuse_jit(rv, CFG, jnp.zeros(K, bool))
+    assert np.all(np.isfinite(np.asarray(r.relative))) and np.all(np.isfinite(np.asarray(r.a0_T_b0)))
+    assert not np.any(np.asarray(r.inlier)) and np.all(np.asarray(r.weights) == 0)

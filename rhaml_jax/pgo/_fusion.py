@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from ..errors import RhamlError, check_shape
 from ._banded import band_solve
 from ._ladder import ladder_iterate, ladder_normal_equations
 from ._residuals import compose, inverse, poses_to_se2, residuals, retract, se2_to_poses
@@ -388,7 +389,10 @@ def _robust_solve(g: FusionGraph, cfg: FusionConfig):
     zero = jnp.asarray(0, jnp.int32)
     c = (T0, g.init_weights, mu0.astype(dt), inf, inf, zero, zero, jnp.asarray(False))
     T, w, _, _, cost, it, solves, _ = jax.lax.while_loop(lambda c: ~c[-1], body, c)
-    return T, w, cost, it - 1, solves
+    # guard: no usable observation leaves B undetermined (singular steps): keep the start
+    has = jnp.any(g.usable)
+    T = jnp.where(has & jnp.all(jnp.isfinite(T)), T, T0)
+    return T, w, jnp.where(has, cost, 0.0), it - 1, solves
 
 
 def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
@@ -399,12 +403,13 @@ def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
     q = p._replace(info=p.info * _edge_weights(w)[:, None, None])
     D, Lo, gv, _ = ladder_normal_equations(T, q, g.a_observes, dataclasses.replace(cfg.solver, robust="none"))
     gauge = jnp.zeros((K + 1, 6), bool).at[0, :3].set(True)
-    # guard: with no mutual edge left B's placement is free (H singular); a tiny ridge keeps
-    # the step (zero: g = 0 at the optimum) and its derivative finite
-    ridge = 1e-12 * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny
+    # guard: with no mutual edge B's placement is free (H singular): a unit ridge then keeps
+    # the (masked) step and its derivative finite; otherwise a tiny one
+    has = jnp.any(g.usable)
+    ridge = jnp.where(has, 1e-12 * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny, 1.0)
     D = D + ridge * jnp.eye(6, dtype=D.dtype)
     x = band_solve(D, Lo, -gv[..., None], cfg.solver.band_solver)[..., 0]
-    x = jnp.where(gauge, 0.0, x)
+    x = jnp.where(gauge | ~has, 0.0, x)
     return retract(T, x.reshape(2 * K + 2, 3))
 
 
@@ -422,6 +427,26 @@ def _result(T4, g: FusionGraph, ub0, w, cost, it, solves) -> FusionResult:
     return FusionResult(pa, pb, a0b0[0], F[0], rel, inlier, g.flipped, w, g.deleted, g.consensus, cost, it, solves)
 
 
+def _check_inputs(rv: Rendezvous, valid, flip_prob, obs_sigma, cfg: FusionConfig) -> None:
+    """Shape and config checks at trace time (shapes are static): one RhamlError line each."""
+    if not isinstance(cfg, FusionConfig):
+        raise RhamlError(f"fuse: cfg must be a FusionConfig, got {type(cfg).__name__}")
+    if cfg.information not in ("noise_model", "paper"):
+        raise RhamlError(f"FusionConfig.information: {cfg.information!r} is not one of noise_model, paper")
+    if cfg.robust not in ("gnc_tls", "none"):
+        raise RhamlError(f"FusionConfig.robust: {cfg.robust!r} is not one of gnc_tls, none")
+    K = int(np.shape(rv.observation)[0]) if np.ndim(rv.observation) == 2 else -1
+    check_shape("rendezvous.observation", rv.observation, (None, 7))
+    if K < 1:
+        raise RhamlError("rendezvous: at least one row is needed")
+    check_shape("rendezvous.odom_a", rv.odom_a, (K + 1, 3))
+    check_shape("rendezvous.odom_b", rv.odom_b, (K + 1, 3))
+    check_shape("rendezvous.a_observes", rv.a_observes, (K,))
+    for name, a, shape in (("valid", valid, (K,)), ("flip_prob", flip_prob, (K,)), ("obs_sigma", obs_sigma, (K, 3))):
+        if a is not None:
+            check_shape(name, a, shape)
+
+
 def fuse(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | None = None,
          flip_prob: jax.Array | None = None, obs_sigma: jax.Array | None = None) -> FusionResult:
     """Robust fusion of K rows of odometry and observations (see the module docstring).
@@ -430,6 +455,7 @@ def fuse(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | 
     probability that an observation's heading is turned by 180 deg (None: 0.5); obs_sigma
     (K, 3): per-row observation sigmas (x, y in m, psi in rad; None: the config's). Pure and
     jit-able with `cfg` static (`fuse_jit`), vmappable, differentiable in rv and obs_sigma."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     sg = jax.lax.stop_gradient
     g0 = _graph(jax.tree.map(sg, rv), valid, None if flip_prob is None else sg(flip_prob),
                 None if obs_sigma is None else sg(obs_sigma), cfg)
@@ -460,12 +486,14 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
     """Online fusion: at each row k, `fuse` on the rendezvous <= k (later rows masked: their
     dangling odometry changes nothing), as one `lax.scan` compiled once for K rows. The
     consensus terms (every candidate against every observation) are computed once and summed
-    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph.
+    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph; rows
+    without a usable observation reuse the last update (under vmap both branches run).
 
     Row k of `relative`, `a0_T_b0` (K, 3), `odom_a_T_odom_b` (K, 3), `inlier`, `flipped` and
     `weights` is what the update at row k said about row k; `poses_a`, `poses_b`, `deleted`,
     `consensus`, `final_cost` are the last update's (= `fuse` on everything); `iterations` and
     `solves` are summed over the updates."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     sg = jax.lax.stop_gradient
     K = rv.observation.shape[0]
     base = jnp.ones((K,), bool) if valid is None else jnp.asarray(valid, bool)
@@ -482,9 +510,13 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
         return _fuse_graph(rv, base & (rows <= k), obs_sigma, g0, cfg)
 
     def step(last, k):
-        r = update(k)
-        out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k], r.iterations,
-               r.solves)
+        # a row without a usable observation adds nothing (same graph, same consensus scores):
+        # the last update's answer is the batch answer on rows <= k too, no solve needed
+        new = inp.usable[k] | (k == 0)
+        r = jax.lax.cond(new, lambda: update(k), lambda: last)
+        zero = jnp.zeros((), jnp.int32)
+        out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k],
+               jnp.where(new, r.iterations, zero), jnp.where(new, r.solves, zero))
         return r, out
 
     init = jax.eval_shape(update, jnp.asarray(0))
@@ -499,6 +531,7 @@ def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None,
     """Host side: the graph `fuse` hands to GNC (after deletion, consensus and flips) as a
     PoseGraph (mutual edges of unusable rows dropped; `robust_edges` marks the mutual ones),
     e.g. for `write_g2o`, GTSAM's GncOptimizer or a plot; plus the device-side FusionGraph."""
+    _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     g = _graph_jit(jax.tree.map(jnp.asarray, rv), valid, flip_prob, obs_sigma, cfg)
     K = int(g.usable.shape[0])
     keep = np.ones((K, 3), bool)
