@@ -58,7 +58,11 @@ def test_pipeline_equals_its_stages(stage):
     assert bool(res.detected.all())
     obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
     rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, obs, seq.a_observes)
-    ref = pgo.fuse_jit(rv, pgo.FusionConfig(), valid=jnp.ones(N, bool), flip_prob=est.flip_prob)
+    valid = jnp.ones(N, bool)
+    first = pgo.fuse_jit(rv, pgo.FusionConfig(), valid=valid, flip_prob=est.flip_prob)
+    c = pgo.range_model(rv, first.odom_a_T_odom_b, first.inlier.astype(jnp.float32))  # batch: calibrate, fuse again
+    ref = pgo.fuse_jit(pgo.rescale_observations(rv, c), pgo.FusionConfig(), valid=valid, flip_prob=est.flip_prob)
+    np.testing.assert_allclose(res.range_model, c, atol=1e-4)
     np.testing.assert_allclose(res.xypsi, ref.relative, atol=1e-3)
     # frames without a detection are no rendezvous: the graph then follows the odometry there
     invalid = seq._replace(valid=np.arange(N) < N - 2)
