@@ -80,14 +80,6 @@ class RendezvousEstimate:
     frames: int  # frames in the sequence
 
 
-def _interleaved(seq: Sequence):
-    """Frame order of the pipeline: at time i, A's image (A observes B), then B's (B observes A)."""
-    frames = [f for pair in zip(seq.frames_a, seq.frames_b) for f in pair]
-    a_observes = np.tile([True, False], len(seq.frames_a))
-    rep = lambda x: np.repeat(np.asarray(x, np.float32), 2, axis=0)  # noqa: E731
-    return frames, a_observes, rep(seq.odom_a), rep(seq.odom_b)
-
-
 def _pipeline(root: Path, zoom_mirror: bool):
     """The shipped IML, a pipeline with the pgo module, and whether mirroring applies."""
     from rhaml_jax import iml, pipeline
@@ -132,15 +124,14 @@ def estimate_a0_T_b0(sequence: Path, observations: Observations = "iml", *, sigm
 
     root = Path(sequence)
     seq = read_sequence(root)
-    frames, a_observes, odom_a, odom_b = _interleaved(seq)
-    if observations == "iml":
-        from rhaml_jax.data import load_rgb
+    from rhaml_jax.sequence import interleave, load_scene
 
+    data = interleave(load_scene(seq.frames_a), load_scene(seq.frames_b))  # time order: A's image, then B's
+    frames, a_observes = data.frames, np.asarray(data.seq.a_observes)
+    odom_a, odom_b = data.seq.odom_a, data.seq.odom_b
+    if observations == "iml":
         model, params = _pipeline(root, zoom_mirror)
-        images = np.stack([load_rgb(f.rgb) for f in frames])
-        K = np.stack([f.K for f in frames]).astype(np.float32)
-        res = pipeline.run_jit(model, params, pipeline.Sequence(images, K, odom_a, odom_b, a_observes,
-                                                               np.ones(len(frames), bool)))
+        res = pipeline.run_jit(model, params, data.seq)
         est, detected, fusion = np.asarray(res.iml.xypsi), np.asarray(res.iml.o) >= min_probability, res.fusion
         source = "iml"
     elif observations == "truth":
