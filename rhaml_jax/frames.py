@@ -13,6 +13,7 @@ import jaxlie
 import numpy as np
 
 from rhaml_jax import camera as _camera
+from rhaml_jax.planar import wrap_angle  # re-exported: the one definition lives in rhaml_jax.planar
 
 __all__ = [
     "wrap_angle",
@@ -24,11 +25,6 @@ __all__ = [
     "bop_from_pose",
     "pose_from_bop",
 ]
-
-
-def wrap_angle(a: jnp.ndarray) -> jnp.ndarray:
-    """Angle(s) wrapped to (-pi, pi]; differentiable everywhere (atan2 of sin, cos)."""
-    return jnp.arctan2(jnp.sin(a), jnp.cos(a))
 
 
 def se2_from_xypsi(xypsi: jnp.ndarray) -> jaxlie.SE2:

@@ -11,7 +11,17 @@ import numpy as np
 
 from rhaml_jax.frames import se3_from_xypsi, wrap_angle
 
-__all__ = ["abs_errors", "ate", "summarize"]
+__all__ = ["DETECTION_THRESHOLD", "abs_errors", "ate", "detection_counts", "summarize"]
+
+DETECTION_THRESHOLD = 0.5  # o >= this: the robot is called in view (everywhere: evaluate, training metrics)
+
+
+def detection_counts(o, observed) -> dict:
+    """Confusion counts of the in-view calls `o >= DETECTION_THRESHOLD` against the truth `observed`."""
+    called = np.asarray(o) >= DETECTION_THRESHOLD
+    observed = np.asarray(observed, bool)
+    return {"tp": int((called & observed).sum()), "fp": int((called & ~observed).sum()),
+            "fn": int((~called & observed).sum()), "tn": int((~called & ~observed).sum())}
 
 
 def abs_errors(est_xypsi: jnp.ndarray, gt_xypsi: jnp.ndarray) -> jnp.ndarray:

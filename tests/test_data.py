@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rhaml_jax import data
+from rhaml_jax import data, planar
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.data._writer import write_scenario, write_training_set
 from rhaml_jax.errors import RhamlError
@@ -46,12 +46,12 @@ def test_odometry_noise_model():
     np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(a[0], truth[0])
     # Per-step increment errors have the design's sigmas (2 % of the step, 0.5 deg per metre).
-    steps = data.relative(truth[:-1], truth[1:])
+    steps = planar.between(truth[:-1], truth[1:])
     L = np.hypot(steps[:, 0], steps[:, 1])
     errs = []
     for seed in range(40):
         o = data.noisy_odometry(truth, seed=seed)
-        errs.append((data.relative(o[:-1], o[1:]) - steps) / np.c_[0.02 * L, 0.02 * L, np.radians(0.5) * L])
+        errs.append((planar.between(o[:-1], o[1:]) - steps) / np.c_[0.02 * L, 0.02 * L, np.radians(0.5) * L])
     z = np.concatenate(errs)
     np.testing.assert_allclose(z.std(axis=0), 1.0, atol=0.03)
     np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=0.03)
@@ -178,7 +178,7 @@ def test_rendezvous_scenario(tmp_path):
     _, b0 = data.read_tum(out / "test/000000/observed_groundtruth.txt")
     for f in data.read_bop(out, scene=0):
         if f.observed:
-            np.testing.assert_allclose(f.xypsi[:2], data.relative(a0[f.im_id], b0[f.im_id])[:2], atol=1e-4)
+            np.testing.assert_allclose(f.xypsi[:2], planar.between(a0[f.im_id], b0[f.im_id])[:2], atol=1e-4)
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -29,11 +29,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["amlnet_loss", "decode", "wrap_angle"]
+from rhaml_jax.planar import wrap_angle
+
+__all__ = ["amlnet_loss", "decode"]
 
 
-def wrap_angle(a):
-    return jnp.arctan2(jnp.sin(a), jnp.cos(a))
 
 
 def decode(out, angle_head: str = "psi") -> dict:

@@ -27,43 +27,39 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import cv2
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax.amlnet.config import AMLNetConfig
 from rhaml_jax.camera import NOMINAL_HEIGHT_M
-from rhaml_jax.data._cache import ImageCache
+from rhaml_jax.crop import MIN_RANGE_M, box_affine, crop_image_host, zoom_box
+from rhaml_jax.data import ImageCache
 from rhaml_jax.errors import RhamlError
+from rhaml_jax.planar import range_bearing, wrap_angle
 
-__all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "correction_targets", "crop_transform", "mirror_average",
+
+def _xp(*arrays):
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+
+__all__ = ["ZoomJitter", "ZoomSource", "apply_correction", "box", "correction_targets", "crop_transform", "mirror_average",
            "zoom_crop", "MIN_RANGE_M"]
 
-MIN_RANGE_M = 0.5  # estimates nearer than this (or behind the camera) are cropped as if at 0.5 m
+def _range_bearing(xy):
+    return range_bearing(xy, min_x=MIN_RANGE_M)
 
 
-def _range_bearing(xy) -> tuple[np.ndarray, np.ndarray]:
-    xy = np.asarray(xy, np.float64)
-    x = np.maximum(xy[..., 0], MIN_RANGE_M)
-    return np.hypot(x, xy[..., 1]), np.arctan2(xy[..., 1], x)
-
-
-def _wrap(a):
-    return np.arctan2(np.sin(a), np.cos(a))
+def box(K, guess_xy, cfg: AMLNetConfig, h: float = NOMINAL_HEIGHT_M):
+    """(..., 4) the crop box (`rhaml_jax.crop`) for the estimates (..., 2) (x^, y^)."""
+    return zoom_box(K, guess_xy, cfg.zoom_length_m, cfg.zoom_factor, cfg.zoom_centre_z_m, h)
 
 
 def crop_transform(K: np.ndarray, guess_xy, cfg: AMLNetConfig, h: float = NOMINAL_HEIGHT_M) -> np.ndarray:
     """(2, 3) affine map from image pixels to crop pixels for the estimate (x^, y^)."""
     if not np.all(np.isfinite(np.asarray(guess_xy, np.float64)[:2])):
         raise RhamlError(f"zoom crop: the estimate (x, y) = {tuple(np.asarray(guess_xy)[:2])} is not finite")
-    x, y = float(max(guess_xy[0], MIN_RANGE_M)), float(guess_xy[1])
-    u = K[0, 2] + K[0, 0] * (-y) / x  # optical frame: (-y, h - z, x)
-    v = K[1, 2] + K[1, 1] * (h - cfg.zoom_centre_z_m) / x
-    side = cfg.zoom_factor * cfg.zoom_length_m * K[0, 0] / x
     S = cfg.input_hw[0]
-    s = S / side
-    # pixel centres at integer coordinates: crop pixel (S - 1) / 2 is the image point (u, v)
-    sv = s * K[0, 0] / K[1, 1]  # the same metric scale vertically (fy may differ from fx)
-    return np.array([[s, 0.0, (S - 1) / 2 - s * u], [0.0, sv, (S - 1) / 2 - sv * v]])
+    return box_affine(box(np.asarray(K, np.float64), np.asarray(guess_xy, np.float64)[:2], cfg, h), S, S)
 
 
 def zoom_crop(img: np.ndarray, K: np.ndarray, guess_xy, cfg: AMLNetConfig) -> np.ndarray:
@@ -71,38 +67,32 @@ def zoom_crop(img: np.ndarray, K: np.ndarray, guess_xy, cfg: AMLNetConfig) -> np
     (area-averaged when shrinking; the border repeated where the crop leaves the image)."""
     if img.ndim != 3 or img.shape[2] != 3:
         raise RhamlError(f"image: expected (H, W, 3) RGB, got shape {img.shape}")
-    A = crop_transform(K, guess_xy, cfg)
+    if not np.all(np.isfinite(np.asarray(guess_xy, np.float64)[:2])):
+        raise RhamlError(f"zoom crop: the estimate (x, y) = {tuple(np.asarray(guess_xy)[:2])} is not finite")
     S = cfg.input_hw[0]
-    shrink = A[0, 0] < 1.0
-    if shrink:  # area filter first, so that a far-range crop does not alias (what INTER_AREA is for)
-        f = A[0, 0]
-        small = cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))),
-                           interpolation=cv2.INTER_AREA)
-        fx_, fy_ = small.shape[1] / img.shape[1], small.shape[0] / img.shape[0]
-        # pixel centres: small pixel j covers image pixels around (j + 0.5) / f - 0.5
-        to_small = np.array([[fx_, 0.0, 0.5 * fx_ - 0.5], [0.0, fy_, 0.5 * fy_ - 0.5]])
-        A = A @ np.linalg.inv(np.vstack([to_small, [0, 0, 1]]))
-        img = small
-    return cv2.warpAffine(img, A, (S, S), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return crop_image_host(img, box(np.asarray(K, np.float64), np.asarray(guess_xy, np.float64)[:2], cfg), S, S)
 
 
-def correction_targets(true_xypsi, guess_xy) -> np.ndarray:
+def correction_targets(true_xypsi, guess_xy):
     """(..., 3) t = (log r / r^, b - b^, psi - b^) of the true pose against the estimate."""
-    true_xypsi = np.asarray(true_xypsi, np.float64)
+    xp = _xp(true_xypsi, guess_xy)
+    true_xypsi = xp.asarray(true_xypsi, xp.float64 if xp is np else None)
     r, b = _range_bearing(true_xypsi[..., :2])
-    rg, bg = _range_bearing(guess_xy)
-    return np.stack([np.log(r / rg), _wrap(b - bg), _wrap(true_xypsi[..., 2] - bg)], -1)
+    rg, bg = _range_bearing(xp.asarray(guess_xy))
+    return xp.stack([xp.log(r / rg), wrap_angle(b - bg), wrap_angle(true_xypsi[..., 2] - bg)], -1)
 
 
-def apply_correction(guess_xy, t) -> np.ndarray:
-    """The inverse of `correction_targets`: (x, y, psi) from the estimate and t (..., 3)."""
-    t = np.asarray(t, np.float64)
-    rg, bg = _range_bearing(guess_xy)
-    r, b = rg * np.exp(t[..., 0]), bg + t[..., 1]
-    return np.stack([r * np.cos(b), r * np.sin(b), _wrap(bg + t[..., 2])], -1)
+def apply_correction(guess_xy, t):
+    """The inverse of `correction_targets`: (x, y, psi) from the estimate and t (..., 3).
+    NumPy (float64) or JAX in, the same out."""
+    xp = _xp(guess_xy, t)
+    t = xp.asarray(t, xp.float64 if xp is np else None)
+    rg, bg = _range_bearing(xp.asarray(guess_xy))
+    r, b = rg * xp.exp(t[..., 0]), bg + t[..., 1]
+    return xp.stack([r * xp.cos(b), r * xp.sin(b), wrap_angle(bg + t[..., 2])], -1)
 
 
-def mirror_average(t, t_mirrored) -> np.ndarray:
+def mirror_average(t, t_mirrored):
     """(..., 3) corrections from a crop and from the same crop mirrored left-right, averaged.
 
     Mirroring the crop about its centre column reflects the scene about the vertical plane
@@ -111,10 +101,11 @@ def mirror_average(t, t_mirrored) -> np.ndarray:
     left-right symmetric robot the mirrored crop is as likely as the original, so the two
     answers are two looks at one pose: positions averaged, headings averaged as unit vectors.
     Measured with the shipped stages (BENCHMARKS.md): ATE 0.31 -> 0.28 on the circle."""
-    t = np.asarray(t, np.float64)
-    tm = np.asarray(t_mirrored, np.float64) * np.array([1.0, -1.0, -1.0])
-    psi = np.arctan2(np.sin(t[..., 2]) + np.sin(tm[..., 2]), np.cos(t[..., 2]) + np.cos(tm[..., 2]))
-    return np.stack([(t[..., 0] + tm[..., 0]) / 2, (t[..., 1] + tm[..., 1]) / 2, psi], -1)
+    xp = _xp(t, t_mirrored)
+    t = xp.asarray(t, xp.float64 if xp is np else None)
+    tm = xp.asarray(t_mirrored, t.dtype) * xp.asarray([1.0, -1.0, -1.0], t.dtype)
+    psi = xp.arctan2(xp.sin(t[..., 2]) + xp.sin(tm[..., 2]), xp.cos(t[..., 2]) + xp.cos(tm[..., 2]))
+    return xp.stack([(t[..., 0] + tm[..., 0]) / 2, (t[..., 1] + tm[..., 1]) / 2, psi], -1)
 
 
 @dataclasses.dataclass(frozen=True)

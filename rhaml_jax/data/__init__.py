@@ -9,13 +9,13 @@
 
 from rhaml_jax.data._bop import BopFrame, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
 from rhaml_jax.data._synth import Sample, SynthConfig, sample_rng, scenario_frame, training_sample
-from rhaml_jax.data._trajectories import Room, circle, compose, noisy_odometry, relative, rendezvous, sine
+from rhaml_jax.data._trajectories import Room, circle, noisy_odometry, rendezvous, sine
 from rhaml_jax.data._tum import read_tum, write_tum
 from rhaml_jax.data._writer import write_scenario, write_training_set
 
 __all__ = [
-    "BopFrame", "Room", "Sample", "SynthConfig", "circle", "compose", "load_bop_model", "load_mask", "load_rgb",
-    "noisy_odometry", "read_bop", "read_tum", "relative", "rendezvous", "sample_rng", "scenario_frame",
+    "BopFrame", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
+    "noisy_odometry", "read_bop", "read_tum", "rendezvous", "sample_rng", "scenario_frame",
     "scene_folders", "sine", "training_sample", "write_scenario", "write_training_set", "write_tum",
 ]
 
@@ -23,5 +23,7 @@ from rhaml_jax.data._augment import AugmentConfig, augment  # noqa: E402
 from rhaml_jax.data._pipeline import (Batch, FromDisk, OnTheFly, amlnet_batch_source, make_batch_fn,  # noqa: E402
                                       network_image)
 
-__all__ += ["AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
+from rhaml_jax.data._cache import ImageCache  # noqa: E402
+
+__all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]

@@ -17,7 +17,7 @@ import numpy as np
 
 from rhaml_jax.camera import NOMINAL_HEIGHT_M, Camera, T_cam_robot
 from rhaml_jax.data._backdrop import Light, photo, room_image, sample_light, sample_room
-from rhaml_jax.data._trajectories import relative
+from rhaml_jax.planar import between
 from rhaml_jax.frames import se3_from_xypsi
 from rhaml_jax.render import Mesh, render
 
@@ -211,7 +211,7 @@ def scenario_frame(model_mesh, camera: Camera, room, light: Light, observer_xyps
     Returns (rgb uint8, mask_visib, pose of the observed robot in the observer's frame (3,),
     observed: enough robot pixels in the image).
     """
-    rel = relative(np.asarray(observer_xypsi, np.float64), np.asarray(observed_xypsi, np.float64))
+    rel = between(np.asarray(observer_xypsi, np.float64), np.asarray(observed_xypsi, np.float64))
     W, H = camera.width, camera.height
     bg = (*room_image(room, light, camera.K, W, H, observer_xypsi, h),)
     bg = (bg[0], np.ones((H, W), bool), bg[1])

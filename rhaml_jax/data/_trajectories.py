@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 
 from rhaml_jax.errors import RhamlError
+from rhaml_jax.planar import between, compose, wrap_angle
 
 # Odometry noise (DESIGN.md section 3): per step, independent.
 ODOM_TRANS_FRAC = 0.02  # sigma of each translation axis, as a fraction of the step length
@@ -22,7 +23,7 @@ def circle(frames: int = 500) -> np.ndarray:
     _check_frames(frames)
     theta = np.pi + 2.0 * np.pi * np.arange(frames) / frames
     x, y = 4.5 + 2.0 * np.cos(theta), 2.0 * np.sin(theta)
-    return np.stack([x, y, _wrap(theta + np.pi / 2)], axis=1)
+    return np.stack([x, y, wrap_angle(theta + np.pi / 2)], axis=1)
 
 
 def sine(frames: int = 500) -> np.ndarray:
@@ -68,25 +69,12 @@ def rendezvous(frames: int, seed: int, room: Room = Room(), speed: float = 0.25,
             while np.linalg.norm(goal - p) < speed:
                 goal = waypoint()
             want = np.arctan2(goal[1] - p[1], goal[0] - p[0])
-            turn = np.clip(_wrap(want - psi), -0.3, 0.3)
-            psi = _wrap(psi + turn)
+            turn = np.clip(wrap_angle(want - psi), -0.3, 0.3)
+            psi = wrap_angle(psi + turn)
             step = speed * max(np.cos(turn), 0.0)  # slow down while turning hard
             p = p + step * np.array([np.cos(psi), np.sin(psi)])
         out.append(traj)
     return out[0], out[1]
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Planar a^-1 b for (..., 3) poses: b expressed in a's frame."""
-    d = b[..., :2] - a[..., :2]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], _wrap(b[..., 2] - a[..., 2])], -1)
-
-
-def compose(a: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Planar a * d for (..., 3) poses."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * d[..., 0] - s * d[..., 1], a[..., 1] + s * d[..., 0] + c * d[..., 1], _wrap(a[..., 2] + d[..., 2])], -1)
 
 
 def noisy_odometry(truth: np.ndarray, seed: int, trans_frac: float = ODOM_TRANS_FRAC, deg_per_m: float = ODOM_DEG_PER_M) -> np.ndarray:
@@ -96,7 +84,7 @@ def noisy_odometry(truth: np.ndarray, seed: int, trans_frac: float = ODOM_TRANS_
     on x and y, deg_per_m degrees per metre travelled on the heading.
     """
     rng = np.random.default_rng(seed)
-    steps = relative(truth[:-1], truth[1:])  # (N-1, 3) true increments
+    steps = between(truth[:-1], truth[1:])  # (N-1, 3) true increments
     length = np.hypot(steps[:, 0], steps[:, 1])
     noise = rng.standard_normal(steps.shape) * np.stack([trans_frac * length, trans_frac * length, np.radians(deg_per_m) * length], 1)
     odo = np.empty_like(truth)
@@ -104,10 +92,6 @@ def noisy_odometry(truth: np.ndarray, seed: int, trans_frac: float = ODOM_TRANS_
     for i, d in enumerate(steps + noise):
         odo[i + 1] = compose(odo[i], d)
     return odo
-
-
-def _wrap(a):
-    return np.arctan2(np.sin(a), np.cos(a))
 
 
 def _check_frames(frames: int) -> None:

@@ -11,9 +11,28 @@ Public API:
   `construct_pose_graph`, `calculate_information_matrix`, `global_optimization`, `rhaml_pgo`
   (`rhaml_pgo_jit`: the same, jit-compiled and shared),
   `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
+- Robust fusion (consensus + GNC-TLS, information from noise models): `OdometryNoise`,
+  `FusionConfig`, `FusionResult`, `fuse` / `fuse_jit` (batch), `fuse_online` /
+  `fuse_online_jit` (row k from rendezvous <= k), `fusion_graph` (the graph GNC sees, host side),
+  `odometry_information`, `rendezvous_from_frames` (per-frame arrays -> Rendezvous);
+  simulators `simulate_static_observer`, `simulate_two_robots` (`FusionSequence`).
 """
 
 from ._chordal import chordal_initialization
+from ._fusion import (
+    FusionConfig,
+    FusionGraph,
+    FusionResult,
+    OdometryNoise,
+    fuse,
+    fuse_jit,
+    fuse_online,
+    fuse_online_jit,
+    fusion_graph,
+    odometry_information,
+    rendezvous_from_frames,
+)
+from ._fusion_sim import FusionSequence, simulate_static_observer, simulate_two_robots
 from ._g2o import format_g2o, parse_g2o, read_g2o, write_g2o
 from ._rhaml_graph import (
     Rendezvous,
@@ -39,4 +58,7 @@ __all__ = [
     "Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "delete_erroneous_nodes", "construct_pose_graph",
     "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pgo_jit", "rhaml_pose_graph",
     "observation_from_xy_yaw_rp",
+    "OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "fuse", "fuse_jit", "fuse_online",
+    "fuse_online_jit", "fusion_graph", "odometry_information", "rendezvous_from_frames",
+    "FusionSequence", "simulate_static_observer", "simulate_two_robots",
 ]

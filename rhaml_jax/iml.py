@@ -1,0 +1,157 @@
+"""IML, the initial mutual localisation (paper section III-A), as one pure JAX function.
+
+    localize(model, params, images, K) -> Estimate
+
+from a batch of full-resolution RGB images (any size and pinhole intrinsics) to the observed
+robot's planar pose in the observer's frame: AMLNet on the image resampled into its camera
+(`crop.network_box` + `crop.resample`), then, if the model has one, the zoom-in stage on a crop
+around AMLNet's estimate (`crop.zoom_box` + `crop.crop_image`: the pixels the zoom stage was
+trained on), optionally also on the mirrored crop (`amlnet.zoom.mirror_average`), and the
+correction applied (`amlnet.zoom.apply_correction`). Pure over (params, inputs), so it jits,
+vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
+
+`IMLModel` is the static part (network definitions and switches; hashed by identity, so each
+loaded model compiles once per input shape), `IMLParams` the arrays. `load_iml` builds both from
+checkpoint folders (default: the shipped `amlnet_cpu` + `zoom_cpu`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import crop
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.errors import RhamlError
+
+__all__ = ["Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit", "check_mirror_symmetric"]
+
+
+class Estimate(NamedTuple):
+    """The observed robot as one stage of the pipeline sees it (batch axis B)."""
+
+    xypsi: jax.Array  # (B, 3) x, y (m), psi (rad) in the observer's robot frame
+    o: jax.Array  # (B,) probability that a robot is in view (called in view at metrics.DETECTION_THRESHOLD)
+    flip_prob: jax.Array  # (B,) probability that psi is off by 180 deg (0.5: no information)
+    roll_pitch: jax.Array  # (B, 2) roll and pitch (rad) of the observation; 0 for IML's planar answer
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class IMLModel:
+    """Static part of IML: the networks' definitions (`amlnet.Net` without their arrays) and
+    switches. Compared and hashed by identity (a jit static argument)."""
+
+    amlnet: object  # amlnet.Net (its cfg and graphdef are used)
+    zoom: object | None = None  # the zoom-in stage's amlnet.Net, or None for AMLNet alone
+    zoom_mirror: bool = False  # also run the zoom stage on the mirrored crop (left-right symmetric robots)
+
+
+class IMLParams(NamedTuple):
+    amlnet: tuple  # (params, batch_stats) of AMLNet
+    zoom: tuple | None  # (params, batch_stats) of the zoom-in stage, or None
+
+
+def _heading(out, angle_head: str):
+    """psi and the length of the predicted (cos, sin) vector (1 for a psi head)."""
+    from rhaml_jax.amlnet import decode
+
+    d = decode(out, angle_head)
+    norm = jnp.hypot(out[:, 3], out[:, 4]) if angle_head == "cossin" else jnp.ones_like(d["psi"])
+    return d, norm
+
+
+def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
+    """images (B, H, W, 3) uint8 or float in [0, 255]; K (3, 3) or (B, 3, 3) their intrinsics."""
+    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average
+    from rhaml_jax.amlnet.zoom import box as zoom_box
+
+    net = model.amlnet
+    B, H, W = images.shape[:3]
+    K = jnp.broadcast_to(jnp.asarray(K, jnp.float32), (B, 3, 3))
+    h, w = net.cfg.input_hw
+    with jax.ensure_compile_time_eval():  # a constant of the model, not a traced value
+        net_K = jnp.asarray(DEFAULT_CAMERA.resized(w, h).K, jnp.float32)
+    boxes = jax.vmap(lambda k: crop.network_box(k, (W, H), net_K, (w, h)))(K)
+    x = jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes) / 255.0
+    out = net.apply(*params.amlnet, x)
+    d, _ = _heading(out, net.cfg.angle_head)
+    xypsi = jnp.stack([d["x"], d["y"], d["psi"]], -1)
+    flip = jnp.full((B,), 0.5, xypsi.dtype)  # AMLNet's own heading at CPU size is a guess (README)
+    if model.zoom is not None:
+        z = model.zoom
+        S = z.cfg.input_hw[0]
+        zb = zoom_box(K, xypsi[:, :2], z.cfg)
+        crops = jax.vmap(lambda im, b: crop.crop_image(im, b, S, S))(images, zb) / 255.0
+
+        def correct(c):
+            zd, norm = _heading(z.apply(*params.zoom, c), z.cfg.angle_head)
+            return jnp.stack([zd["x"], zd["y"], zd["psi"]], -1), norm
+
+        t, norm = correct(crops)
+        if model.zoom_mirror:
+            tm, norm_m = correct(crops[:, :, ::-1])
+            t = mirror_average(t, tm)
+            norm = 0.5 * (norm + norm_m)
+        xypsi = apply_correction(xypsi[:, :2], t)
+        # A (cos, sin) regressor torn between a heading and its opposite answers with a short
+        # vector (their mean is near zero): the shorter, the likelier a flip. Not calibrated
+        # (BENCHMARKS.md measures how well it ranks flips); 0 for a unit vector, 0.5 at length 0.
+        flip = 0.5 * (1.0 - jnp.clip(norm, 0.0, 1.0))
+    return Estimate(xypsi, d["o"], flip, jnp.zeros((B, 2), xypsi.dtype))
+
+
+localize_jit = jax.jit(localize, static_argnums=0)
+
+
+MAX_MIRROR_SHAPE = 0.02  # of the robot's length
+MAX_MIRROR_COLOUR = 0.05  # of its surface
+
+
+def check_mirror_symmetric(model_path: Path) -> None:
+    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a BOP model
+    (models/obj_000001.ply) that is not (RobotModel.mirror_asymmetry)."""
+    from rhaml_jax.robots import load_robot
+
+    model = load_robot(str(model_path))
+    shape, colour = model.mirror_asymmetry()
+    length = float(model.extents.max())
+    if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:
+        raise RhamlError(f"--zoom-mirror: the robot model {model_path} is not left-right symmetric (its mirror image is "
+                         f"{100 * shape:.1f} cm off, {100 * colour:.0f} % of its surface another colour; limits "
+                         f"{100 * MAX_MIRROR_SHAPE:.0f} % of its {100 * length:.0f} cm length and "
+                         f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
+
+
+def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
+             zoom_mirror: bool = False) -> tuple[IMLModel, IMLParams]:
+    """IML from checkpoint folders. Defaults: the shipped `amlnet_cpu` and, with it, its own
+    `zoom_cpu` (a user's `amlnet` gets no zoom stage unless `zoom` is given)."""
+    from rhaml_jax.amlnet import load_model, shipped_checkpoint
+
+    net, p, s = load_model(amlnet or shipped_checkpoint("amlnet_cpu"))
+    if getattr(net.cfg, "task", "localize") != "localize":
+        raise RhamlError(f"--amlnet {amlnet}: holds a zoom-in stage ({net.cfg.name}), not AMLNet")
+    if zoom is None and amlnet is None and not no_zoom:
+        zoom = shipped_checkpoint("zoom_cpu")
+    znet, zp = None, None
+    if zoom is not None and not no_zoom:
+        znet, zparams, zstats = load_model(zoom)
+        if getattr(znet.cfg, "task", "localize") != "zoom":
+            raise RhamlError(f"--zoom {zoom}: holds a {znet.cfg.name} network, not a zoom-in stage")
+        zp = (zparams, zstats)
+    if zoom_mirror and znet is None:
+        raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
+    return IMLModel(net, znet, zoom_mirror), IMLParams((p, s), zp)
+
+
+def stack_images(images: list[np.ndarray]) -> np.ndarray:
+    """Host side: a list of (H, W, 3) uint8 images of one size -> (B, H, W, 3), or a clear error."""
+    shapes = {im.shape for im in images}
+    if len(shapes) != 1:
+        raise RhamlError(f"images: a batch must share one size, got {sorted(shapes)}")
+    return np.stack(images)
