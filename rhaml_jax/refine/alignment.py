@@ -46,7 +46,7 @@ from rhaml_jax import crop as _crop
 from rhaml_jax import render
 from rhaml_jax.camera import T_cam_robot
 
-__all__ = ["AlignConfig", "AlignResult", "align", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
+__all__ = ["AlignConfig", "AlignResult", "align", "align_crop", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
            "xypsi_from_params", "check_init"]
 
 
@@ -197,11 +197,14 @@ def _loss_fn(mesh, K, box, target, h, S):
     return residuals, losses, vg
 
 
-def _bias(mesh, K, box, P, k, h, S):
-    """(N, S, S) stop-gradient soft - hard silhouette at params P: the renderer's excess."""
+def _bias(mesh, K, box, P, k, h, S, ss: int = 4):
+    """(N, S, S) stop-gradient soft - hard silhouette at params P: the renderer's excess. The
+    hard silhouette is rendered ss x ss times finer and averaged (its pixel-area coverage, as the
+    observed mask's area-filtered crop), so the debiased residual compares like with like."""
     T = pose_from_params(P, h)
     soft = render.silhouette(mesh, T, K, S, S, box=box, sharpness=k)
-    hard = render.render(mesh, T, K, S, S, box=box).mask.astype(soft.dtype)
+    hard = render.render(mesh, T, K, S * ss, S * ss, box=box).mask.astype(soft.dtype)
+    hard = hard.reshape(hard.shape[:-2] + (S, ss, S, ss)).mean((-3, -1))
     return jax.lax.stop_gradient(soft - hard)
 
 
@@ -250,11 +253,24 @@ def align(mesh, mask, K, init_xypsi, cfg: AlignConfig = AlignConfig()) -> AlignR
     K = jnp.asarray(K, jnp.float32)
     init = jnp.asarray(init_xypsi, jnp.float32)
     Hh, Ww = mask.shape
-    S, h = cfg.crop, cfg.camera_height_m
     declined = check_init(mesh, K, init, Ww, Hh, cfg)
     safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
-    target = _crop.crop_image(mask[..., None], box, S, S)[..., 0]  # (S, S)
+    target = _crop.crop_image(mask[..., None], box, cfg.crop, cfg.crop)[..., 0]  # (S, S)
+    return align_crop(mesh, target, box, K, init, Ww, Hh, cfg)
+
+
+def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: AlignConfig = AlignConfig()) -> AlignResult:
+    """`align` given the observed mask already cropped: target (S, S) in [0, 1] of `box` (4,)
+    (S = cfg.crop), e.g. a mask head's output; the image is width x height px."""
+    mesh = render.as_mesh(mesh)
+    K = jnp.asarray(K, jnp.float32)
+    init = jnp.asarray(init_xypsi, jnp.float32)
+    S, h = cfg.crop, cfg.camera_height_m
+    declined = check_init(mesh, K, init, width, height, cfg)
+    safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
+    box = jax.lax.stop_gradient(box)
+    target = jax.lax.stop_gradient(target)
     p0 = jax.lax.stop_gradient(params_from_xypsi(safe))
     P = hypotheses(p0, cfg)  # (N, 3)
     N = P.shape[0]
@@ -310,6 +326,7 @@ def align(mesh, mask, K, init_xypsi, cfg: AlignConfig = AlignConfig()) -> AlignR
     out = init + jax.lax.stop_gradient(xyp_best - init)
     out = out.at[2].set(init[2] + jax.lax.stop_gradient(
         jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))))
+    out = out.at[2].set(jnp.arctan2(jnp.sin(out[2]), jnp.cos(out[2])))  # wrapped; gradient 1
     out = jnp.where(declined, init, out)
     T = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_z_radians(out[2]),
                                                  jnp.stack([out[0], out[1], jnp.zeros_like(out[0])]))
