@@ -23,7 +23,7 @@ import numpy as np
 import tyro
 
 from rhaml_jax import allocator, data, metrics, render
-from rhaml_jax.refine import AlignConfig, align
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, refine
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +40,10 @@ class Args:
     """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates"""
     crop: int = 64
     debias_stages: int = 2
+    refiner: Path | None = None
+    """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
+    oracle: bool = True
+    """run the alignment to the ground-truth masks (the oracle row)"""
     json: Path | None = None
 
 
@@ -52,6 +56,36 @@ def summary(est, gt, ms=None) -> dict:
     if ms is not None:
         s["ms_per_frame"] = float(np.median(ms))
     return s
+
+
+def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[dict]:
+    """Rows after each learned iteration and after the alignment to the predicted mask."""
+    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=None)))
+    f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
+    its, est, ms_it, ms_all = [], [], [], []
+    for j, fr in enumerate(frames):
+        im = jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255
+        args = (im, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
+        if j == 0:
+            jax.block_until_ready((f_it(*args), f_all(*args)))
+        t = time.perf_counter()
+        r1 = jax.block_until_ready(f_it(*args))
+        ms_it.append(1e3 * (time.perf_counter() - t))
+        t = time.perf_counter()
+        r2 = jax.block_until_ready(f_all(*args))
+        ms_all.append(1e3 * (time.perf_counter() - t))
+        its.append(np.asarray(r1.iterates)); est.append(np.asarray(r2.xypsi))
+    its, est = np.stack(its), np.stack(est)
+    per_frame.append({"start": name, "learned_iterates": its.tolist(), "learned_aligned": est.tolist()})
+    rows = []
+    for k in range(0, its.shape[1]):
+        rows.append({"start": name, "stage": f"learned iteration {k}" if k else "start", "frames": len(gt), "stride": a.stride,
+                     **summary(its[:, k], gt, ms_it if k == its.shape[1] - 1 else None)})
+    rows.append({"start": name, "stage": "learned + alignment (predicted mask)", "frames": len(gt), "stride": a.stride,
+                 **summary(est, gt, ms_all)})
+    for r in rows:
+        print(json.dumps(r), flush=True)
+    return rows
 
 
 def main(a: Args) -> list[dict]:
@@ -72,10 +106,15 @@ def main(a: Args) -> list[dict]:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
     cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages)
-    rows = []
+    rows, per_frame = [], []
+    ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     for name in a.starts:
         init = starts[name]
         K = jnp.asarray(frames[0].K, jnp.float32)
+        if ref is not None:
+            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame)
+        if not a.oracle:
+            continue
         f = jax.jit(lambda m, i, K: align(mesh, m, K, i, cfg))
         jax.block_until_ready(f(jnp.asarray(data.load_mask(frames[0].mask), jnp.float32), jnp.asarray(init[0]), K))
         est, ms, conf = [], [], []
@@ -86,6 +125,7 @@ def main(a: Args) -> list[dict]:
             ms.append(1e3 * (time.perf_counter() - t))
             est.append(np.asarray(r.xypsi)); conf.append(float(r.flip_confidence))
         est = np.stack(est)
+        per_frame.append({"start": name, "gt": gt.tolist(), "init": init.tolist(), "est": est.tolist(), "flip_confidence": conf})
         for stage, e, t in (("start", init, None), ("alignment (gt masks)", est, ms)):
             row = {"start": name, "stage": stage, "frames": len(gt), "stride": a.stride, **summary(e, gt, t)}
             if t is not None:
@@ -93,7 +133,7 @@ def main(a: Args) -> list[dict]:
             print(json.dumps(row), flush=True)
             rows.append(row)
     if a.json:
-        a.json.write_text(json.dumps({"args": {k: str(v) for k, v in dataclasses.asdict(a).items()}, "rows": rows}, indent=1))
+        a.json.write_text(json.dumps({"args": {k: str(v) for k, v in dataclasses.asdict(a).items()}, "rows": rows, "per_frame": per_frame}))
     return rows
 
 

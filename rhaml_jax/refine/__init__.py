@@ -31,7 +31,7 @@ from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_cr
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 
 __all__ = ["AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
-           "RefineConfig", "RefineResult", "refine", "load_refiner"]
+           "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -181,3 +181,32 @@ def load_refiner(ckpt_dir: str | Path, model=None) -> Refiner:
     finally:
         ck.close()
     return Refiner(jax.tree.map(lambda a: jnp.asarray(np.asarray(a)), state["params"]), cfg)
+
+
+def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
+    """Writes the latest weights of a refiner run (no optimizer state) as a checkpoint folder
+    that `load_refiner` reads; returns `out_dir`."""
+    import numpy as np
+
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+
+    ref = load_refiner(run_dir)
+    src = Checkpoints(run_dir, read_only=True)
+    try:
+        step = src.latest_step()
+        meta = {**src.meta(step), "weights_only": True, "exported_from": str(run_dir)}
+    finally:
+        src.close()
+    dst = Checkpoints(out_dir, keep=1)
+    try:
+        dst.save(step, {"params": jax.tree.map(np.asarray, ref.params), "batch_stats": {}}, meta)
+    finally:
+        dst.close()
+    return Path(out_dir)
+
+
+def shipped_refiner(model=None) -> Refiner:
+    """The refiner shipped in the package (rhaml_jax/checkpoints/refiner_cpu), for the built-in robot."""
+    from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
+
+    return load_refiner(shipped_checkpoint("refiner_cpu"), model)
