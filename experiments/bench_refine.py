@@ -76,7 +76,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[
         ms_all.append(1e3 * (time.perf_counter() - t))
         its.append(np.asarray(r1.iterates)); est.append(np.asarray(r2.xypsi))
     its, est = np.stack(its), np.stack(est)
-    per_frame.append({"start": name, "learned_iterates": its.tolist(), "learned_aligned": est.tolist()})
+    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "learned_aligned": est.tolist()})
     rows = []
     for k in range(0, its.shape[1]):
         rows.append({"start": name, "stage": f"learned iteration {k}" if k else "start", "frames": len(gt), "stride": a.stride,
@@ -139,3 +139,19 @@ def main(a: Args) -> list[dict]:
 
 if __name__ == "__main__":
     main(tyro.cli(Args))
+
+
+def rows_from_json(path: Path) -> list[dict]:
+    """The rows of a saved run recomputed from its per-frame dump (e.g. the start rows of a
+    --refiner --no-oracle run: column 0 of the learned iterates)."""
+    d = json.loads(Path(path).read_text())
+    gt = {}
+    rows = []
+    for pf in d["per_frame"]:
+        if "gt" in pf:
+            gt[pf["start"]] = np.asarray(pf["gt"])
+    for pf in d["per_frame"]:
+        its = np.asarray(pf.get("learned_iterates", []))
+        if its.size and pf["start"] in gt:
+            rows.append({"start": pf["start"], "stage": "start", **summary(its[:, 0], gt[pf["start"]])})
+    return rows

@@ -48,8 +48,10 @@ class Refiner:
 class RefineConfig:
     camera_height_m: float = 0.30
     """observer camera height h"""
-    align: AlignConfig | None = AlignConfig()
-    """the alignment after the learned iterations (None: learned iterations only)"""
+    align: AlignConfig | None = None
+    """the alignment after the learned iterations, to the refiner's predicted mask (None: learned
+    iterations only; the shipped refiner's mask head is too coarse for it: BENCHMARKS.md). Without a
+    refiner the alignment always runs (AlignConfig() when None)"""
     n_iter: int | None = None
     """learned iterations (None: the refiner's config, 4)"""
 
@@ -96,7 +98,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     image = jnp.asarray(image, jnp.float32)
     Hh, Ww = image.shape[:2]
     h = cfg.camera_height_m
-    acfg = None if cfg.align is None else dataclasses.replace(cfg.align, camera_height_m=h)
+    a = cfg.align if cfg.align is not None or refiner is not None else AlignConfig()
+    acfg = None if a is None else dataclasses.replace(a, camera_height_m=h)
     declined = check_init(mesh, K, init, Ww, Hh, acfg or AlignConfig(camera_height_m=h))
     safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
     iterates = [init]
