@@ -77,6 +77,12 @@ class AlignConfig:
     """largest "lm" step per parameter (the rest of a longer step is dropped)"""
     lr: tuple[float, float, float] = (0.02, 0.006, 0.08)
     """first Adam step per parameter (log range, bearing rad, heading rad); halves each stage"""
+    coarse_margin: float = 2.5
+    """`align` first centres the estimate in a crop this much wider than the model's box
+    (position only, the estimate alone), then crops again at `margin` around the result: a
+    decimetre lateral error at 3 m otherwise leaves half the robot outside the 1.4x crop"""
+    coarse_stages: tuple[tuple, ...] = ((1.0, 6, "xy"),)
+    """the stages of that first pass (() to skip it)"""
     flip: bool = True
     """also start from the heading turned by 180 deg"""
     mirror: bool = True
@@ -87,6 +93,12 @@ class AlignConfig:
     """extra starts drawn around the estimate (a fixed pseudo-random pattern)"""
     perturb_sigma: tuple[float, float, float] = (0.06, 0.01, 0.6)
     """std of the perturbed starts (log range, bearing rad, heading rad)"""
+    tie: float = 0.3
+    """hypotheses whose final loss is within (1 + tie) x the lowest are tied: the one nearest the
+    initial estimate wins (0: the lowest loss always wins)"""
+    tie_scale: tuple[float, float, float] = (0.05, 0.02, 0.5)
+    """units of the distance from the start that breaks ties (log range, bearing rad, heading rad):
+    near head-on views a hypothesis can trade range for heading at almost the same loss"""
     min_range_m: float = 0.3
     """an initial estimate nearer than this (or behind the camera) is declined"""
 
@@ -255,9 +267,17 @@ def align(mesh, mask, K, init_xypsi, cfg: AlignConfig = AlignConfig()) -> AlignR
     Hh, Ww = mask.shape
     declined = check_init(mesh, K, init, Ww, Hh, cfg)
     safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
+    start = init
+    if cfg.coarse_stages:
+        coarse = dataclasses.replace(cfg, margin=cfg.coarse_margin, stages=cfg.coarse_stages, flip=False, mirror=False,
+                                     perturbed=0, debias_stages=0, coarse_stages=())
+        cbox = jax.lax.stop_gradient(crop_box(mesh, K, safe, coarse))
+        ctarget = _crop.crop_image(mask[..., None], cbox, cfg.crop, cfg.crop)[..., 0]
+        start = align_crop(mesh, ctarget, cbox, K, init, Ww, Hh, coarse).xypsi
+        safe = jnp.where(declined, safe, start)
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
     target = _crop.crop_image(mask[..., None], box, cfg.crop, cfg.crop)[..., 0]  # (S, S)
-    return align_crop(mesh, target, box, K, init, Ww, Hh, cfg)
+    return align_crop(mesh, target, box, K, start, Ww, Hh, cfg)
 
 
 def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: AlignConfig = AlignConfig()) -> AlignResult:
@@ -313,7 +333,14 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     k_last = jnp.float32(cfg.stages[-1][0])
     bias0 = _bias(mesh, K, box, p0[None], k_last, h, S) if cfg.debias_stages else zero_bias
     L_init = losses(p0[None], k_last, bias0)[0]
-    best = jnp.argmin(L)
+    # Ties go to the hypothesis nearest the initial estimate: near head-on and tail-on views the
+    # silhouette hardly changes with the heading, and the mirror / flipped hypotheses then score
+    # within noise of the right one (measured: 9 of 50 circle frames chose a wrong one by < 30 %).
+    tied = L <= jnp.min(L) * (1 + cfg.tie) + 1e-9
+    dp = P - p0
+    dp = dp.at[:, 2].set(jnp.arctan2(jnp.sin(dp[:, 2]), jnp.cos(dp[:, 2])))
+    d_init = jnp.sum(jnp.abs(dp) / jnp.asarray(cfg.tie_scale, P.dtype), -1)  # distance from the start
+    best = jnp.argmin(jnp.where(tied, d_init, jnp.inf))
     keep_init = L_init <= L[best]
     p_best = jnp.where(keep_init, p0, P[best])
     L_best = jnp.where(keep_init, L_init, L[best])
