@@ -3,6 +3,7 @@
   python -m rhaml_jax.train --stage amlnet --config cpu --out runs/amlnet_cpu [--robot R]
       [--data DIR] [--steps N] [--batch B] [--resume]
   python -m rhaml_jax.train --stage zoom --config zoom_cpu --data DIR --out runs/zoom_cpu
+  python -m rhaml_jax.train --stage refiner --config refiner_cpu --data DIR --out runs/refiner_cpu [--resume]
 
 Without --data the training images are generated on the fly by `rhaml_jax.data`; with --data
 they are read from a BOP folder (also through `rhaml_jax.data`).  The run folder receives
@@ -23,7 +24,7 @@ from rhaml_jax.allocator import tune_allocator
 from rhaml_jax.amlnet.trainer import TrainConfig
 from rhaml_jax.errors import RhamlError, run_cli
 
-__all__ = ["Args", "main", "amlnet_sources", "zoom_sources"]
+__all__ = ["Args", "main", "amlnet_sources", "zoom_sources", "train_refiner"]
 
 
 @dataclass(frozen=True)
@@ -31,7 +32,7 @@ class Args:
     stage: Literal["amlnet", "zoom", "refiner"]
     """which network: the AMLNet initial localiser, its zoom-in stage (needs --data) or the iterative refiner"""
     config: str
-    """model config name (e.g. paper, cpu, cpu_k0, frontnet; see rhaml_jax.amlnet.config)"""
+    """model config name (e.g. paper, cpu, cpu_k0, frontnet, zoom_cpu: rhaml_jax.amlnet.config; refiner_cpu: rhaml_jax.refine.net)"""
     out: Path
     """run folder: checkpoints/, metrics.jsonl, metrics.png"""
     robot: str = "pioneer3dx"
@@ -81,11 +82,35 @@ def zoom_sources(args: Args, cfg):
             make_batch_fn(val, tc.batch, tc.seed + 10_000, None), f"zoom crops of BOP {args.data}")
 
 
+def train_refiner(args: Args) -> dict:
+    """--stage refiner: the learned refiner on a BOP set (crops around drawn initial poses,
+    rhaml_jax.refine.train); the checkpoint stores the config and the robot's name and extents."""
+    from rhaml_jax.data import load_bop_model
+    from rhaml_jax.refine.net import get_refiner_config
+    from rhaml_jax.refine.train import RefinerSource, refiner_task
+    from rhaml_jax.training import fit
+
+    if args.data is None or args.toy_data:
+        raise RhamlError("--stage refiner: needs --data (a BOP training set with a val split)")
+    cfg = get_refiner_config(args.config)
+    tc = args.train
+    if tc.steps < 1 or tc.batch < 1:
+        raise RhamlError(f"--steps {tc.steps} / --batch {tc.batch}: must be positive")
+    model = load_bop_model(args.data)
+    source = RefinerSource(args.data, "train", cfg, tc.batch, seed=tc.seed)
+    val = RefinerSource(args.data, "val", cfg, tc.batch, seed=tc.seed + 10_000)
+    task, shardings = refiner_task(cfg, tc, model, model, val)
+    res = fit(task, tc, args.out, source, shardings=shardings, resume=args.resume,
+              data_label=f"refiner crops of BOP {args.data}", progress=args.progress)
+    print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()))
+    return res
+
+
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
     if args.stage == "refiner":
-        raise RhamlError("--stage refiner: the refiner trainer is not part of this build yet")
+        return train_refiner(args)
     from rhaml_jax.amlnet.config import get_config
     from rhaml_jax.amlnet.trainer import train_amlnet
 

@@ -1,0 +1,157 @@
+"""Refinement benchmark: silhouette alignment (and, with --refiner, the learned iterations) on
+BOP scenarios, from (a) ground truth + the paper's noise and (b) the shipped IML's estimates.
+
+  python experiments/bench_refine.py --data /work/data/circle /work/data/sine \
+      --iml-json /work/data/iml_circle.json /work/data/iml_sine.json --stride 5 --json out.json
+
+Masks: --masks gt uses the scenes' ground-truth masks (BOP mask_visib): the oracle row, which
+separates the alignment's own error from a mask predictor's. Prints one JSON line per
+(start, stage) with mean +- std |dx|, |dy| (cm), |dpsi| (deg), ATE, flips (|dpsi| > 90 deg),
+range bias (%) and ms per frame (median over frames, one frame at a time, compiled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import tyro
+
+from rhaml_jax import allocator, data, metrics, render
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, refine
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    data: tuple[Path, ...]
+    """BOP scenario folders"""
+    iml_json: tuple[Path, ...] = ()
+    """`evaluate --json` outputs (one per --data, same order) for start (b)"""
+    stride: int = 1
+    """every stride-th frame (the alignment costs about a second per frame on this CPU)"""
+    seed: int = 0
+    """seed of the paper's noise for start (a)"""
+    starts: tuple[str, ...] = ("noise", "iml")
+    """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates"""
+    crop: int = 64
+    debias_stages: int = 2
+    refiner: Path | None = None
+    """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
+    oracle: bool = True
+    """run the alignment to the ground-truth masks (the oracle row)"""
+    json: Path | None = None
+
+
+def summary(est, gt, ms=None) -> dict:
+    s = metrics.summarize(est, gt)
+    d = np.asarray(metrics.abs_errors(jnp.asarray(est, jnp.float32), jnp.asarray(gt, jnp.float32)))
+    rr = np.hypot(est[:, 0], est[:, 1]) / np.hypot(gt[:, 0], gt[:, 1]) - 1
+    s.update(flips=int((d[:, 2] > np.pi / 2).sum()), range_bias_pct=float(100 * rr.mean()),
+             median_dpsi_deg=float(np.rad2deg(np.median(d[:, 2]))))
+    if ms is not None:
+        s["ms_per_frame"] = float(np.median(ms))
+    return s
+
+
+def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[dict]:
+    """Rows after each learned iteration and after the alignment to the predicted mask."""
+    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=None)))
+    f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
+    its, est, ms_it, ms_all = [], [], [], []
+    for j, fr in enumerate(frames):
+        im = jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255
+        args = (im, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
+        if j == 0:
+            jax.block_until_ready((f_it(*args), f_all(*args)))
+        t = time.perf_counter()
+        r1 = jax.block_until_ready(f_it(*args))
+        ms_it.append(1e3 * (time.perf_counter() - t))
+        t = time.perf_counter()
+        r2 = jax.block_until_ready(f_all(*args))
+        ms_all.append(1e3 * (time.perf_counter() - t))
+        its.append(np.asarray(r1.iterates)); est.append(np.asarray(r2.xypsi))
+    its, est = np.stack(its), np.stack(est)
+    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "learned_aligned": est.tolist()})
+    rows = []
+    for k in range(0, its.shape[1]):
+        rows.append({"start": name, "stage": f"learned iteration {k}" if k else "start", "frames": len(gt), "stride": a.stride,
+                     **summary(its[:, k], gt, ms_it if k == its.shape[1] - 1 else None)})
+    rows.append({"start": name, "stage": "learned + alignment (predicted mask)", "frames": len(gt), "stride": a.stride,
+                 **summary(est, gt, ms_all)})
+    for r in rows:
+        print(json.dumps(r), flush=True)
+    return rows
+
+
+def main(a: Args) -> list[dict]:
+    allocator.tune_allocator()
+    frames, inits_iml = [], []
+    for i, root in enumerate(a.data):
+        fr = [f for f in data.read_bop(root) if f.observed]
+        if a.iml_json:
+            est = {(r["scene_id"], r["im_id"]): r["est"] for r in json.loads(Path(a.iml_json[i]).read_text())["frames"]}
+            inits_iml += [est[(f.scene_id, f.im_id)] for f in fr][:: a.stride]
+        frames += fr[:: a.stride]
+    gt = np.stack([f.xypsi for f in frames]).astype(np.float32)
+    rng = np.random.default_rng(a.seed)
+    noise = np.stack([rng.normal(0, 0.15, len(gt)), rng.normal(0, 0.15, len(gt)),
+                      rng.normal(0, np.deg2rad(20), len(gt))], 1).astype(np.float32)
+    starts = {"noise": gt + noise}
+    if inits_iml:
+        starts["iml"] = np.asarray(inits_iml, np.float32)
+    mesh = render.as_mesh(data.load_bop_model(a.data[0]))
+    cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages)
+    rows, per_frame = [], []
+    ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
+    for name in a.starts:
+        init = starts[name]
+        K = jnp.asarray(frames[0].K, jnp.float32)
+        if ref is not None:
+            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame)
+        if not a.oracle:
+            continue
+        f = jax.jit(lambda m, i, K: align(mesh, m, K, i, cfg))
+        jax.block_until_ready(f(jnp.asarray(data.load_mask(frames[0].mask), jnp.float32), jnp.asarray(init[0]), K))
+        est, ms, conf = [], [], []
+        for j, fr in enumerate(frames):
+            m = jnp.asarray(data.load_mask(fr.mask), jnp.float32)
+            t = time.perf_counter()
+            r = jax.block_until_ready(f(m, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32)))
+            ms.append(1e3 * (time.perf_counter() - t))
+            est.append(np.asarray(r.xypsi)); conf.append(float(r.flip_confidence))
+        est = np.stack(est)
+        per_frame.append({"start": name, "gt": gt.tolist(), "init": init.tolist(), "est": est.tolist(), "flip_confidence": conf})
+        for stage, e, t in (("start", init, None), ("alignment (gt masks)", est, ms)):
+            row = {"start": name, "stage": stage, "frames": len(gt), "stride": a.stride, **summary(e, gt, t)}
+            if t is not None:
+                row["median_flip_confidence"] = float(np.median(conf))
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    if a.json:
+        a.json.write_text(json.dumps({"args": {k: str(v) for k, v in dataclasses.asdict(a).items()}, "rows": rows, "per_frame": per_frame}))
+    return rows
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
+
+
+def rows_from_json(path: Path) -> list[dict]:
+    """The rows of a saved run recomputed from its per-frame dump (e.g. the start rows of a
+    --refiner --no-oracle run: column 0 of the learned iterates)."""
+    d = json.loads(Path(path).read_text())
+    gt = {}
+    rows = []
+    for pf in d["per_frame"]:
+        if "gt" in pf:
+            gt[pf["start"]] = np.asarray(pf["gt"])
+    for pf in d["per_frame"]:
+        its = np.asarray(pf.get("learned_iterates", []))
+        if its.size and pf["start"] in gt:
+            rows.append({"start": pf["start"], "stage": "start", **summary(its[:, 0], gt[pf["start"]])})
+    return rows

@@ -1,0 +1,215 @@
+"""Iterative refinement (the paper's IR): a learned DeepIM-style refiner, then multi-hypothesis
+silhouette alignment through our differentiable renderer.
+
+Public API:
+- `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None) -> RefineResult`: the pipeline's
+  entry point (pure JAX, jit-able with cfg and the net static, vmappable over frames);
+- `load_refiner(ckpt_dir, model=None) -> Refiner` (a checkpoint of another robot is refused);
+- `align`, `align_crop`, `AlignConfig`, `AlignResult`: the alignment alone (rhaml_jax.refine.alignment);
+- `RefinerConfig`, `get_refiner_config`: the learned refiner's configs (rhaml_jax.refine.net).
+
+Camera: the observer's camera sits at (0, 0, h) in its robot frame and looks along +x with no
+tilt (DESIGN.md section 2; `camera.T_cam_robot(h)`), h = `RefineConfig.camera_height_m`
+(nominal 0.30 m); poses in and out are the observed robot's in the observer's robot frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+
+from rhaml_jax import crop as _crop
+from rhaml_jax import frames, render
+from rhaml_jax.camera import T_cam_robot
+from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, check_init
+from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
+
+__all__ = ["AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+           "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner"]
+
+
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
+@dataclasses.dataclass(frozen=True)
+class Refiner:
+    """A trained refiner: params (a plain pytree: the pytree's leaves) and its static config
+    (pytree metadata), so a Refiner passes through jit / vmap / grad as an argument."""
+
+    params: dict
+    cfg: RefinerConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class RefineConfig:
+    camera_height_m: float = 0.30
+    """observer camera height h"""
+    align: AlignConfig | None = None
+    """the alignment after the learned iterations, to the refiner's predicted mask (None: learned
+    iterations only; the shipped refiner's mask head is too coarse for it: BENCHMARKS.md). Without a
+    refiner the alignment always runs (AlignConfig() when None)"""
+    n_iter: int | None = None
+    """learned iterations (None: the refiner's config, 4)"""
+
+
+class RefineResult(NamedTuple):
+    pose: jax.Array  # (7,) SE3 wxyz_xyz, the observed robot in the observer's robot frame
+    xypsi: jax.Array  # (3,) its planar pose
+    roll_pitch: jax.Array  # (2,) roll, pitch (rad) of the learned refiner's last SE(3) estimate
+    #                        (0 without a refiner): large values flag an erroneous observation
+    declined: jax.Array  # () bool: the initial pose is behind the camera / projects outside the image
+    flip_confidence: jax.Array  # () the alignment's margin over the best other-facing hypothesis, [0, 1]
+    score: jax.Array  # () the alignment's final loss (0 without alignment)
+    iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one)
+
+
+def _T_cam(xypsi, h):
+    return T_cam_robot(h) @ frames.se3_from_xypsi(xypsi)
+
+
+def _corners(mesh):
+    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+    sel = jnp.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], lo.dtype)
+    return lo + sel * (hi - lo)
+
+
+def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None
+           ) -> RefineResult:
+    """Refines the planar estimate `init_xypsi` (3,) of the robot seen in `image` (H, W, 3)
+    float32 in [0, 1] through intrinsics K (3, 3).
+
+    With a refiner: n_iter learned iterations (re-rendering at each new pose), then (cfg.align)
+    the silhouette alignment to the refiner's predicted mask. Without one (None): the alignment
+    alone, to the observed mask `mask` (H, W) in [0, 1] (required). A declined start (behind the
+    camera, projecting outside the image, non-finite) returns the initial pose, never NaN.
+    Differentiable wrt init_xypsi and the refiner's params (the alignment's increments are
+    straight-through, see rhaml_jax.refine.alignment)."""
+    from rhaml_jax.errors import RhamlError
+    from rhaml_jax.refine import net as N
+    from rhaml_jax.refine.train import render_input
+
+    mesh = render.as_mesh(mesh)
+    K = jnp.asarray(K, jnp.float32)
+    init = jnp.asarray(init_xypsi, jnp.float32)
+    image = jnp.asarray(image, jnp.float32)
+    Hh, Ww = image.shape[:2]
+    h = cfg.camera_height_m
+    a = cfg.align if cfg.align is not None or refiner is not None else AlignConfig()
+    acfg = None if a is None else dataclasses.replace(a, camera_height_m=h)
+    declined = check_init(mesh, K, init, Ww, Hh, acfg or AlignConfig(camera_height_m=h))
+    safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
+    iterates = [init]
+    roll_pitch = jnp.zeros(2, jnp.float32)
+    xyp = safe
+    target = box = None
+    if refiner is not None:
+        rc = refiner.cfg
+        n_iter = rc.n_iter if cfg.n_iter is None else cfg.n_iter
+        T = _T_cam(safe, h)
+        corners = _corners(mesh)
+        T_back = T_cam_robot(h).inverse()
+
+        def step(T):
+            bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
+            obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
+            x = render_input(mesh, rc, obs[None], T, K, bx)  # (1, S, S, 7)
+            return N.apply(rc, refiner.params, x), bx
+
+        for _ in range(n_iter):
+            out, bx = step(jaxlie.SE3(T.wxyz_xyz[None]))
+            T = jaxlie.SE3(N.apply_update(jaxlie.SE3(T.wxyz_xyz[None]), out.update, K, bx).wxyz_xyz[0])
+            iterates.append(frames.xypsi_from_se3(T_back @ T))
+        T_obs = T_back @ T
+        xyp = frames.xypsi_from_se3(T_obs)
+        roll_pitch = frames.roll_pitch_yaw(T_obs)[:2]
+        if acfg is not None:  # the mask head at the final pose, in the alignment's crop
+            box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
+            obs = _crop.crop_image(image, box, rc.crop, rc.crop)
+            T1 = _T_cam(xyp, h)
+            x = render_input(mesh, rc, obs[None], jaxlie.SE3(T1.wxyz_xyz[None]), K, box)
+            logits = N.apply(rc, refiner.params, x).mask_logits[0]
+            target = jax.image.resize(jax.nn.sigmoid(logits), (acfg.crop, acfg.crop), "bilinear")
+    elif mask is None:
+        raise RhamlError("refine: without a refiner, pass the observed mask (mask=...) for the alignment")
+    score = jnp.float32(0.0)
+    conf = jnp.float32(0.0)
+    if acfg is not None:
+        if target is None:
+            r = align(mesh, mask, K, xyp, acfg)
+        else:
+            r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
+        xyp, score, conf = r.xypsi, r.score, r.flip_confidence
+    xyp = jnp.where(declined, init, xyp)
+    its = jnp.stack(iterates)
+    its = jnp.where(declined, init[None], its)
+    roll_pitch = jnp.where(declined, 0.0, roll_pitch)
+    T = jaxlie.SE3.from_rotation_and_translation(
+        jaxlie.SO3.from_rpy_radians(roll_pitch[0], roll_pitch[1], xyp[2]),
+        jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
+    return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(declined, 0.0, conf), score, its)
+
+
+def load_refiner(ckpt_dir: str | Path, model=None) -> Refiner:
+    """The refiner in an Orbax run folder (rebuilt from its stored config). With `model` (a
+    RobotModel), a checkpoint trained for a robot of other extents is refused (RhamlError)."""
+    import numpy as np
+
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+    from rhaml_jax.errors import RhamlError
+    from rhaml_jax.refine import net as N
+    from rhaml_jax.refine.train import check_robot
+
+    ck = Checkpoints(ckpt_dir, read_only=True)
+    try:
+        step = ck.latest_step()
+        if step is None:
+            raise RhamlError(f"{ckpt_dir}: no checkpoint saved yet")
+        meta = ck.meta(step)
+        if meta.get("kind") != "refiner":
+            raise RhamlError(f"{ckpt_dir}: not a refiner checkpoint (it holds {meta.get('model_config', {}).get('name')!r})")
+        if model is not None:
+            check_robot(meta, model, str(ckpt_dir))
+        cfg = N.config_from_dict(meta["model_config"])
+        like = {"params": N.init_params(cfg, jax.random.key(0)), "batch_stats": {}}
+        if not meta.get("weights_only", False):
+            from rhaml_jax.amlnet.steps import make_optimizer
+
+            clip = meta.get("train_config", {}).get("clip")
+            like["opt_state"] = jax.eval_shape(make_optimizer(1e-3, 2, clip=clip).init, like["params"])
+        state = ck.restore(step, like)
+    finally:
+        ck.close()
+    return Refiner(jax.tree.map(lambda a: jnp.asarray(np.asarray(a)), state["params"]), cfg)
+
+
+def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
+    """Writes the latest weights of a refiner run (no optimizer state) as a checkpoint folder
+    that `load_refiner` reads; returns `out_dir`."""
+    import numpy as np
+
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+
+    ref = load_refiner(run_dir)
+    src = Checkpoints(run_dir, read_only=True)
+    try:
+        step = src.latest_step()
+        meta = {**src.meta(step), "weights_only": True, "exported_from": str(run_dir)}
+    finally:
+        src.close()
+    dst = Checkpoints(out_dir, keep=1)
+    try:
+        dst.save(step, {"params": jax.tree.map(np.asarray, ref.params), "batch_stats": {}}, meta)
+    finally:
+        dst.close()
+    return Path(out_dir)
+
+
+def shipped_refiner(model=None) -> Refiner:
+    """The refiner shipped in the package (rhaml_jax/checkpoints/refiner_cpu), for the built-in robot."""
+    from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
+
+    return load_refiner(shipped_checkpoint("refiner_cpu"), model)

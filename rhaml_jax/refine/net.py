@@ -1,0 +1,152 @@
+"""The learned refiner (DeepIM-style, the paper's IR): a small FlowNetS-like encoder on the
+observed crop stacked with the render at the current pose, regressing a relative SE(3) update
+in DeepIM's disentangled form and the observed robot's mask.
+
+Input (S, S, 7): observed crop RGB, rendered RGB, rendered mask, all in [0, 1], one crop box
+(`rhaml_jax.crop`) for both. Output: (v_x, v_y) image-plane offsets of the model origin's
+projection in units of the crop's size, v_z = log(z_src / z_tgt), a rotation vector (axis-angle,
+camera-frame axes, about the model origin; DeepIM's disentangled rotation) and mask logits
+(S, S). `apply_update` composes them with the source pose T_cam_model.
+
+The net is a static frozen dataclass (hashable: jit argument) and its params a plain pytree
+(no graphdef): `init_params(cfg, key)`, `apply(cfg, params, x)`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+__all__ = ["RefinerConfig", "init_params", "apply", "apply_update", "point_matching_loss", "mask_loss",
+           "config_to_dict", "config_from_dict", "REFINER_CONFIGS", "get_refiner_config"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RefinerConfig:
+    name: str = "refiner_cpu"
+    crop: int = 64
+    """input side (px)"""
+    widths: tuple[int, ...] = (32, 64, 128, 128)
+    """stride-2 3x3 conv stages (FlowNetS-like, about half width)"""
+    hidden: int = 256
+    """fully connected layer before the pose head"""
+    margin: float = 1.4
+    """crop box = projected model box at the current estimate times this (DeepIM)"""
+    n_iter: int = 4
+    """test-time iterations (re-rendering between them)"""
+    w_mask: float = 0.1
+    """weight of the mask head's sigmoid cross-entropy"""
+    n_points: int = 512
+    """model surface points of the point-matching loss (eq. 8)"""
+    scale: tuple[float, float, float, float] = (0.1, 0.1, 0.1, 0.2)
+    """output scales of (v_x, v_y), v_z, rotation (rad), mask logits init: keeps the first updates small"""
+
+
+REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_micro": RefinerConfig(name="refiner_micro", crop=32,
+                                                                                   widths=(8, 16), hidden=32,
+                                                                                   n_points=64)}
+
+
+def get_refiner_config(name: str) -> RefinerConfig:
+    from rhaml_jax.errors import RhamlError
+
+    if name not in REFINER_CONFIGS:
+        raise RhamlError(f"--config {name!r}: not a refiner config (known: {', '.join(REFINER_CONFIGS)})")
+    return REFINER_CONFIGS[name]
+
+
+def config_to_dict(cfg: RefinerConfig) -> dict:
+    return json_safe(dataclasses.asdict(cfg))
+
+
+def json_safe(d):
+    import json
+
+    return json.loads(json.dumps(d))
+
+
+def config_from_dict(d: dict) -> RefinerConfig:
+    fields = {f.name for f in dataclasses.fields(RefinerConfig)}
+    d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields}
+    return RefinerConfig(**d)
+
+
+def _conv_init(key, k, cin, cout):
+    return {"w": jax.random.normal(key, (k, k, cin, cout), jnp.float32) * np.sqrt(2.0 / (k * k * cin)),
+            "b": jnp.zeros((cout,), jnp.float32)}
+
+
+def init_params(cfg: RefinerConfig, key) -> dict:
+    keys = jax.random.split(key, len(cfg.widths) + 4)
+    convs, cin = [], 7
+    for i, c in enumerate(cfg.widths):
+        convs.append(_conv_init(keys[i], 3, cin, c))
+        cin = c
+    side = cfg.crop // 2 ** len(cfg.widths)
+    flat = side * side * cin
+    fc = {"w": jax.random.normal(keys[-4], (flat, cfg.hidden)) * np.sqrt(2.0 / flat), "b": jnp.zeros((cfg.hidden,))}
+    head = {"w": jnp.zeros((cfg.hidden, 6)), "b": jnp.zeros((6,))}  # zero init: the first update is the identity
+    mask_in = cfg.widths[1] if len(cfg.widths) > 1 else cfg.widths[0]
+    mask = _conv_init(keys[-2], 3, mask_in, 1)
+    return {"convs": convs, "fc": fc, "head": head, "mask": mask}
+
+
+def _conv(x, p, stride):
+    y = jax.lax.conv_general_dilated(x, p["w"], (stride, stride), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return y + p["b"]
+
+
+class Output(NamedTuple):
+    update: jax.Array  # (B, 6) v_x, v_y (crop fractions), v_z, rotation vector (rad)
+    mask_logits: jax.Array  # (B, S, S)
+
+
+def apply(cfg: RefinerConfig, params: dict, x) -> Output:
+    """x (B, S, S, 7) -> Output."""
+    h = x * 2.0 - 1.0
+    feats = []
+    for p in params["convs"]:
+        h = jax.nn.gelu(_conv(h, p, 2))
+        feats.append(h)
+    B = x.shape[0]
+    z = jax.nn.gelu(h.reshape(B, -1) @ params["fc"]["w"] + params["fc"]["b"])
+    raw = z @ params["head"]["w"] + params["head"]["b"]
+    s = jnp.asarray([cfg.scale[0], cfg.scale[0], cfg.scale[1], cfg.scale[2], cfg.scale[2], cfg.scale[2]])
+    f = feats[1] if len(feats) > 1 else feats[0]
+    m = _conv(f, params["mask"], 1)[..., 0]
+    m = jax.image.resize(m, (B, cfg.crop, cfg.crop), "bilinear")
+    return Output(raw * s, m)
+
+
+def apply_update(T_cam_model: jaxlie.SE3, update, K, box):
+    """DeepIM's disentangled update of T_cam_model (batched) by `update` (..., 6).
+
+    z_tgt = z_src / exp(v_z); x_tgt / z_tgt = x_src / z_src + v_x * box_w / f_x (likewise y);
+    R_tgt = exp(rotation vector) R_src (camera-frame axes through the model origin)."""
+    t = T_cam_model.translation()
+    z_src = jnp.maximum(t[..., 2], 1e-3)  # guard: a source behind the camera (declined upstream)
+    z_tgt = z_src * jnp.exp(-update[..., 2])
+    bw, bh = box[..., 2] - box[..., 0], box[..., 3] - box[..., 1]
+    xr = t[..., 0] / z_src + update[..., 0] * bw / K[..., 0, 0]
+    yr = t[..., 1] / z_src + update[..., 1] * bh / K[..., 1, 1]
+    t_new = jnp.stack([xr * z_tgt, yr * z_tgt, z_tgt], -1)
+    R = jaxlie.SO3.exp(update[..., 3:6]) @ T_cam_model.rotation()
+    return jaxlie.SE3.from_rotation_and_translation(R, t_new)
+
+
+def point_matching_loss(T_pred: jaxlie.SE3, T_gt: jaxlie.SE3, points):
+    """Eq. 8: mean over model points (P, 3) of the L1 distance (m) between the points moved by
+    the predicted and the true pose; (B,) per example."""
+    a = jax.vmap(lambda T: T @ points)(T_pred) if T_pred.wxyz_xyz.ndim > 1 else T_pred @ points
+    b = jax.vmap(lambda T: T @ points)(T_gt) if T_gt.wxyz_xyz.ndim > 1 else T_gt @ points
+    return jnp.mean(jnp.sum(jnp.abs(a - b), -1), -1)
+
+
+def mask_loss(logits, target):
+    """(B,) mean sigmoid cross-entropy of the mask head against the observed mask in [0, 1]."""
+    return jnp.mean(jnp.maximum(logits, 0) - logits * target + jnp.log1p(jnp.exp(-jnp.abs(logits))), axis=(-2, -1))
