@@ -159,21 +159,25 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
-    """IR on every frame (the refiner declines where the estimate cannot be refined; frames
-    not detected keep IML's estimate)."""
-    if model.refiner is None:
-        raise RhamlError("modules include ir but the pipeline has no refiner (load one with rhaml_jax.refine)")
+    """IR on every frame (`refine.refine`: the learned iterations, re-rendering between them);
+    frames not detected, or where the refiner declines (the estimate behind the camera or
+    outside the image), keep IML's estimate."""
+    if model.refiner is None or params.refiner is None:
+        raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
     from rhaml_jax import refine
 
-    def one(frame):
-        image, K, e = frame
-        return refine.refine_estimate(model.refiner, params.refiner, image, K, e)
+    refiner, mesh = params.refiner
 
-    out = _chunked(one, (seq.images, seq.K, est), model.config.chunk)
+    def one(frame):
+        image, K, xypsi = frame
+        return refine.refine(refiner, mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner)
+
+    out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
     keep = detected & ~out.declined
     pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
-    return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(out.flip_prob, est.flip_prob),
-                    pick(out.roll_pitch, est.roll_pitch))
+    # the alignment's margin over the other-facing hypothesis (0 when it did not run) lowers the flip doubt
+    flip = est.flip_prob * (1.0 - out.flip_confidence)
+    return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(flip, est.flip_prob), pick(out.roll_pitch, est.roll_pitch))
 
 
 run_jit = jax.jit(run, static_argnums=0)

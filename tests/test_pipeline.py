@@ -112,7 +112,7 @@ def test_modules_and_config_errors(stage):
             pipeline.parse_modules(bad)
     with pytest.raises(RhamlError, match="pgo_mode"):
         pipeline.PipelineConfig(pgo_mode="sometimes")
-    with pytest.raises(RhamlError, match="no refiner"):
+    with pytest.raises(RhamlError, match="has no refiner"):
         m, p = stage
         pipeline.run(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "ir"))),
                      pipeline.PipelineParams(p), _sequence())
