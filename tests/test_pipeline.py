@@ -154,3 +154,28 @@ def test_no_rendezvous_keeps_the_stage_estimates(stage):
         res = pipeline.run_jit(model, pipeline.PipelineParams(p), seq)
         assert not bool(res.detected.any())
         np.testing.assert_allclose(res.xypsi, res.iml.xypsi)
+
+
+def test_gradient_reaches_amlnet_through_refinement_and_the_pose_graph(stage):
+    from rhaml_jax import refine, render
+    from rhaml_jax.robots import load_robot
+
+    m, p = stage
+    cfg = refine.get_refiner_config("refiner_micro")
+    refiner = refine.Refiner(refine.net.init_params(cfg, jax.random.key(3)), cfg)
+    mesh = render.as_mesh(load_robot("pioneer3dx"))
+    seq = _sequence(n=4)
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), chunk=4), refine.RefineConfig())
+    truth = jnp.asarray(seq.odom_b)
+
+    def loss(amlnet_params):
+        params = pipeline.PipelineParams(iml.IMLParams((amlnet_params, p.amlnet[1]), p.zoom), (refiner, mesh))
+        r = pipeline.run(model, params, seq)
+        d = planar.between(truth, r.xypsi)
+        return jnp.sum(d[:, :2] ** 2) + 0.1 * jnp.sum(d[:, 2] ** 2), r
+
+    (value, r), g = jax.jit(jax.value_and_grad(loss, has_aux=True))(p.amlnet[0])
+    assert r.ir is not None and bool(jnp.all(jnp.isfinite(r.xypsi)))
+    leaves = jax.tree.leaves(g)
+    assert all(bool(jnp.all(jnp.isfinite(v))) for v in leaves)
+    assert sum(float(jnp.abs(v).sum()) for v in leaves) > 0

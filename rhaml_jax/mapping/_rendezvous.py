@@ -15,6 +15,7 @@ error from the fusion's, fuses the ground truth plus Gaussian noise with the sam
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Literal
 
@@ -81,8 +82,9 @@ class RendezvousEstimate:
 
 
 def _pipeline(root: Path, zoom_mirror: bool):
-    """The shipped IML, a pipeline with the pgo module, and whether mirroring applies."""
-    from rhaml_jax import iml, pipeline
+    """The shipped IML in a pipeline with the pgo module (mirroring only for a left-right
+    symmetric robot)."""
+    from rhaml_jax import iml
     from rhaml_jax.data import bop_model_path, load_bop_model
 
     if zoom_mirror:
@@ -90,6 +92,15 @@ def _pipeline(root: Path, zoom_mirror: bool):
             iml.check_mirror_symmetric(load_bop_model(root), bop_model_path(root))
         except RhamlError:
             zoom_mirror = False  # not a left-right symmetric robot: no mirrored crops
+    return _shipped_pipeline(zoom_mirror)
+
+
+@functools.lru_cache(maxsize=2)
+def _shipped_pipeline(zoom_mirror: bool):
+    """One model object per setting: the jitted pipeline compiles once per sequence length
+    (its static argument is compared by identity), however many sequences are fused."""
+    from rhaml_jax import iml, pipeline
+
     iml_model, iml_params = iml.load_iml(zoom_mirror=zoom_mirror)
     model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=("iml", "pgo")))
     return model, pipeline.PipelineParams(iml_params)
