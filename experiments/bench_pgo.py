@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rhaml_jax.pgo import RhamlPGOConfig, SolverConfig, optimize, read_g2o, rhaml_pgo_jit, rhaml_pose_graph  # noqa: E402
-from rhaml_jax.pgo._simulate import simulate_rendezvous  # noqa: E402
+from rhaml_jax.pgo import simulate_rendezvous  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pgo"
 DEFAULT = "ring,MITb,FR079,CSAIL,FRH,intel,ringCity,M3500,manhattan,city10000,ais2klinik"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rhaml_jax.pgo import SolverConfig, graph_cost, optimize, read_g2o, rhaml_pgo_jit, rhaml_pose_graph
-from rhaml_jax.pgo._simulate import simulate_rendezvous
+from rhaml_jax.pgo import simulate_rendezvous
 from tests.conftest import shared_path
 
 gtsam = pytest.importorskip("gtsam", reason="gtsam (pip package) is the reference for these tests")

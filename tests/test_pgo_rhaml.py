@@ -16,7 +16,7 @@ from rhaml_jax.pgo import (
     delete_erroneous_nodes, format_g2o, observation_from_xy_yaw_rp, parse_g2o, rhaml_pgo_jit, rhaml_pose_graph,
 )
 from rhaml_jax.pgo._rhaml_graph import _prepare
-from rhaml_jax.pgo._simulate import simulate_rendezvous
+from rhaml_jax.pgo import simulate_rendezvous
 
 K = 40  # the same size in test_pgo_gtsam.py: one compiled rhaml_pgo_jit for both
 _pgo = rhaml_pgo_jit

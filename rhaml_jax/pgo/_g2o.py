@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rhaml_jax.planar import wrap_angle
 from ..errors import RhamlError
 from ._types import PoseGraph
 from ._validate import validate_graph
@@ -154,7 +155,7 @@ def chain_initial_guess(n: int, edges: np.ndarray, z: np.ndarray, root: int, nam
                 f"{name}: graph is disconnected: vertex {missing} (and {int((~known).sum()) - 1} more) "
                 f"cannot be reached from vertex {ids[root]}"
             )
-    poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
+    poses[:, 2] = wrap_angle(poses[:, 2])
     return poses
 
 

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from rhaml_jax.planar import between, compose, wrap_angle
 from ._rhaml_graph import Rendezvous
 
 __all__ = ["SimulatedRendezvous", "simulate_rendezvous"]
@@ -27,22 +28,6 @@ class SimulatedRendezvous(NamedTuple):
     outlier: np.ndarray  # (K,) bool: observation replaced by a wrong one
 
 
-def _wrap(a):
-    return np.arctan2(np.sin(a), np.cos(a))
-
-
-def _compose(a, b):
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                     _wrap(a[..., 2] + b[..., 2])], -1)
-
-
-def _between(a, b):
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[..., 2] - a[..., 2])], -1)
-
-
 def _drive(rng, start, steps, step_len):
     """True path (steps+1, 3) and noisy odometry (steps+1, 3) starting at the true start."""
     true = [start]
@@ -52,9 +37,9 @@ def _drive(rng, start, steps, step_len):
         heading_rate = 0.8 * heading_rate + rng.normal(0, 0.15)
         d = step_len * (1.0 + 0.2 * rng.uniform(-1, 1))
         motion = np.array([d, 0.0, heading_rate * d])
-        true.append(_compose(true[-1], motion))
+        true.append(compose(true[-1], motion))
         noisy = motion + rng.normal(0, 1, 3) * np.array([0.02 * d, 0.02 * d, np.deg2rad(0.5) * d])
-        odom.append(_compose(odom[-1], noisy))
+        odom.append(compose(odom[-1], noisy))
     return np.array(true), np.array(odom)
 
 
@@ -73,10 +58,10 @@ def simulate_rendezvous(K: int = 100, seed: int = 0, steps_between: int = 5, ste
     idx = np.arange(0, steps + 1, steps_between)  # start, then each rendezvous
     true_a, true_b = ta[idx], tb[idx]
     a_obs = rng.uniform(size=K) < 0.5
-    rel = np.where(a_obs[:, None], _between(true_a[1:], true_b[1:]), _between(true_b[1:], true_a[1:]))
+    rel = np.where(a_obs[:, None], between(true_a[1:], true_b[1:]), between(true_b[1:], true_a[1:]))
     noise = rng.normal(0, 1, (K, 3)) * np.array([sigma_xy, sigma_xy, np.deg2rad(sigma_yaw_deg)])
     meas = rel + noise
-    meas[:, 2] = _wrap(meas[:, 2])
+    meas[:, 2] = wrap_angle(meas[:, 2])
     outlier = np.zeros(K, bool)
     n_out = int(round(outlier_fraction * K))
     if n_out:
@@ -85,7 +70,7 @@ def simulate_rendezvous(K: int = 100, seed: int = 0, steps_between: int = 5, ste
         dist = rng.uniform(1.0, 3.0, n_out)
         meas[outlier, 0] += dist * np.cos(ang)
         meas[outlier, 1] += dist * np.sin(ang)
-        meas[outlier, 2] = _wrap(meas[outlier, 2] + rng.choice([-1, 1], n_out) * rng.uniform(np.pi / 2, np.pi, n_out))
+        meas[outlier, 2] = wrap_angle(meas[outlier, 2] + rng.choice([-1, 1], n_out) * rng.uniform(np.pi / 2, np.pi, n_out))
     rp = rng.normal(0, np.deg2rad(sigma_rp_deg), (K, 2))
     n_tilt = int(round(tilted_fraction * K))
     if n_tilt:
@@ -93,4 +78,4 @@ def simulate_rendezvous(K: int = 100, seed: int = 0, steps_between: int = 5, ste
         rp[tilt, rng.integers(0, 2, n_tilt)] = rng.choice([-1, 1], n_tilt) * rng.uniform(np.deg2rad(12), np.deg2rad(40), n_tilt)
     obs = np.asarray(observation_from_xy_yaw_rp(meas, rp), np.float64)
     rv = Rendezvous(oa[idx], ob[idx], obs, a_obs)
-    return SimulatedRendezvous(rv, true_a, true_b, _between(true_a[0], true_b[0]), outlier)
+    return SimulatedRendezvous(rv, true_a, true_b, between(true_a[0], true_b[0]), outlier)
