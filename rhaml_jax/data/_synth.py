@@ -144,18 +144,11 @@ def _render(model_mesh, T_cam_model: jaxlie.SE3, camera: Camera, light: Light):
     return np.asarray(out.rgb), np.asarray(out.mask), np.asarray(out.depth)
 
 
-def compose(layers) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Depth compositing of [(rgb, mask, depth)], first layer the backdrop (mask all True).
-
-    Returns (rgb uint8, the visible part of each layer's mask).
-    """
-    rgb = np.array(layers[0][0], np.float32)
-    depth = np.array(layers[0][2], np.float32)
-    front = np.zeros(depth.shape, np.int8)
-    for i, (c, m, d) in enumerate(layers[1:], 1):
-        sel = m & (d < depth)
-        rgb[sel], depth[sel], front[sel] = c[sel], d[sel], i
-    return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), [front == i for i in range(len(layers))]
+def composite_layers(layers) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Depth compositing of image layers [(rgb, mask, depth)], first layer the backdrop (mask
+    all True). Returns (rgb uint8, the visible part of each layer's mask)."""
+    rgb, visible = _composite_float(layers)
+    return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), visible
 
 
 def _observed_pose(rng, camera: Camera, cfg: SynthConfig) -> np.ndarray:
@@ -204,10 +197,10 @@ def training_sample(model_mesh, camera: Camera, seed: int, index: int, negative:
         if cfg.max_distractors:
             layers.append(_render(Mesh(jnp.asarray(dv), jnp.asarray(df), jnp.asarray(dc)), T_cam, camera, light))
         if negative:
-            rgb, _ = compose(layers)
+            rgb, _ = composite_layers(layers)
             return Sample(rgb, np.zeros((H, W), bool), np.zeros((H, W), bool), False, np.zeros(3), h)
         robot = _render(model_mesh, T_cam @ se3_from_xypsi(pose), camera, light)
-        rgb, visible = compose(layers + [robot])
+        rgb, visible = composite_layers(layers + [robot])
         if visible[-1].sum() >= MIN_VISIBLE_PX:
             return Sample(rgb, visible[-1], robot[1].astype(bool), True, pose, h)
     raise RuntimeError(f"training_sample: no visible robot placement found for seed {seed}, index {index}")
@@ -224,10 +217,10 @@ def scenario_frame(model_mesh, camera: Camera, room, light: Light, observer_xyps
     bg = (*room_image(room, light, camera.K, W, H, observer_xypsi, h),)
     bg = (bg[0], np.ones((H, W), bool), bg[1])
     if rel[0] <= 0.3:  # behind or beside the observer: cannot be in view
-        rgb, _ = compose([bg])
+        rgb, _ = composite_layers([bg])
         return rgb, np.zeros((H, W), bool), rel, False
     robot = _render(model_mesh, T_cam_robot(h) @ se3_from_xypsi(rel), camera, light)
-    rgb, visible = compose([bg, robot])
+    rgb, visible = composite_layers([bg, robot])
     return rgb, visible[-1], rel, bool(visible[-1].sum() >= MIN_VISIBLE_PX)
 
 
@@ -371,7 +364,7 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
         if not negative:
             layer = _albedo_layer(robot_mesh, T_cam @ se3_from_xypsi(pose), camera)
             layers.append(_shaded(layer, robot_world, faces_model, camera, cam_pose, look))
-        linear, visible = _compose_float(layers)
+        linear, visible = _composite_float(layers)
         rgb = _ap.camera_effects(linear, look, scale)
         if negative:
             return Sample(rgb, np.zeros((H, W), bool), np.zeros((H, W), bool), False, np.zeros(3), h)
@@ -380,8 +373,8 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
     raise RuntimeError(f"training_sample_v2: no visible robot placement found for seed {seed}, index {index}")
 
 
-def _compose_float(layers):
-    """`compose` without the 8-bit rounding: (linear rgb (H, W, 3) float32, visible masks)."""
+def _composite_float(layers):
+    """`composite_layers` without the 8-bit rounding: (linear rgb (H, W, 3) float32, visible masks)."""
     rgb = np.array(layers[0][0], np.float32)
     depth = np.array(layers[0][2], np.float32)
     front = np.zeros(depth.shape, np.int8)
@@ -415,5 +408,5 @@ def scenario_frame_v2(model_mesh, camera: Camera, room, look, observer_xypsi, ob
     bg = _floor_shadows(bg, bg_depth, face == 0, world, np.asarray(model_mesh.faces), T_cam_world, camera, look, scale)
     layer = _albedo_layer(robot_mesh, T_cam @ se3_from_xypsi(rel), camera)
     robot = _shaded(layer, world, np.asarray(model_mesh.faces), camera, cam_pose, look)
-    linear, visible = _compose_float([(bg, np.ones((H, W), bool), bg_depth), robot])
+    linear, visible = _composite_float([(bg, np.ones((H, W), bool), bg_depth), robot])
     return _ap.camera_effects(linear, look, scale), visible[-1], rel, bool(visible[-1].sum() >= MIN_VISIBLE_PX)
