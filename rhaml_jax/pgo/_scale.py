@@ -31,6 +31,7 @@ from ._rhaml_graph import Rendezvous, _planar
 __all__ = ["RANGE_R0_M", "range_model", "rescale_observations"]
 
 RANGE_R0_M = 4.5
+MAX_LOG_SCALE = 0.3  # a range error beyond +-35 % is no calibration but a localiser that failed
 
 
 def _log_ratio(c, r):
@@ -66,7 +67,12 @@ def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, 
 
     theta0 = jnp.concatenate([odom_a_T_odom_b, jnp.zeros((nc,), odom_a_T_odom_b.dtype)])
     theta, _ = jax.lax.scan(step, theta0, None, length=iterations)
-    return coefficients(theta)
+    # guard: undamped Gauss-Newton on garbage (a localiser that does not see the robot) can
+    # diverge; keep the fit only if it lowered the cost, is finite, and stays within +-30 %
+    cost = lambda t: jnp.sum(residuals(t) ** 2)  # noqa: E731
+    c = coefficients(theta)
+    ok = jnp.all(jnp.isfinite(c)) & (cost(theta) <= cost(theta0)) & (jnp.abs(c[0]) <= MAX_LOG_SCALE)
+    return jnp.where(ok, c, 0.0)
 
 
 def rescale_observations(rv: Rendezvous, c: jax.Array, iterations: int = 6) -> Rendezvous:
