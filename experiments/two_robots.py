@@ -42,8 +42,13 @@ def main():
         mods = tuple(combo.split(","))
         for mode in (["batch", "online"] if "pgo" in mods else ["-"]):
             cfg = pipeline.PipelineConfig(modules=mods, pgo_mode="batch" if mode == "-" else mode)
-            model = pipeline.PipelineModel(iml_model, cfg)
-            params = pipeline.PipelineParams(iml_params)
+            refiner = refiner_params = None
+            if "ir" in mods:
+                from rhaml_jax import refine
+
+                refiner, refiner_params = refine.load_stage(None, a.data)
+            model = pipeline.PipelineModel(iml_model, cfg, refiner)
+            params = pipeline.PipelineParams(iml_params, refiner_params)
             f = pipeline.run_jit.lower(model, params, data.seq).compile()
             t = time.perf_counter()
             res = jax.device_get(f(params, data.seq))
