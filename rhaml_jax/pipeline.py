@@ -77,12 +77,12 @@ class PipelineModel:
 
     iml: IMLModel
     config: PipelineConfig = PipelineConfig()
-    refiner: object | None = None  # refine stage (rhaml_jax.refine), needed when "ir" is in the modules
+    refiner: object | None = None  # refine.RefineConfig (from refine.load_stage), needed when "ir" is in the modules
 
 
 class PipelineParams(NamedTuple):
     iml: IMLParams
-    refiner: object | None = None  # the refiner's arrays (or None: alignment only / no IR)
+    refiner: object | None = None  # (refine.Refiner, render.Mesh) from refine.load_stage, or None without IR
 
 
 class Sequence(NamedTuple):
