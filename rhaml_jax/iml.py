@@ -23,7 +23,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from rhaml_jax import crop
 from rhaml_jax.camera import DEFAULT_CAMERA
@@ -141,10 +140,3 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
         raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
     return IMLModel(net, znet, zoom_mirror), IMLParams((p, s), zp)
 
-
-def stack_images(images: list[np.ndarray]) -> np.ndarray:
-    """Host side: a list of (H, W, 3) uint8 images of one size -> (B, H, W, 3), or a clear error."""
-    shapes = {im.shape for im in images}
-    if len(shapes) != 1:
-        raise RhamlError(f"images: a batch must share one size, got {sorted(shapes)}")
-    return np.stack(images)
