@@ -1,7 +1,7 @@
 """`python -m rhaml_jax.train`: trains a network of the pipeline.
 
   python -m rhaml_jax.train --stage amlnet --config cpu --out runs/amlnet_cpu [--robot R]
-      [--data DIR] [--steps N] [--batch B] [--resume]
+      [--data DIR] [--steps N] [--batch B] [--resume] [--init CKPT]
   python -m rhaml_jax.train --stage zoom --config zoom_cpu --data DIR --out runs/zoom_cpu
   python -m rhaml_jax.train --stage refiner --config refiner_cpu --data DIR --out runs/refiner_cpu [--resume]
 
@@ -43,6 +43,8 @@ class Args:
     """optimisation settings (flags --steps, --batch, --lr, ... without a prefix)"""
     resume: bool = False
     """continue the run in --out from its latest checkpoint"""
+    init: Path | None = None
+    """amlnet / zoom: start from the weights of this checkpoint folder (e.g. rhaml_jax/checkpoints/amlnet_cpu) instead of a random initialisation: fine-tuning"""
     toy_data: bool = False
     """TEST ONLY: coloured rectangles instead of robot images (exercises the trainer; the model learns nothing about robots)"""
     progress: bool = True
@@ -110,6 +112,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
     if args.stage == "refiner":
+        if args.init is not None:
+            raise RhamlError("--init: fine-tuning is for --stage amlnet and zoom; the refiner starts from its own initialisation")
         return train_refiner(args)
     from rhaml_jax.amlnet.config import get_config
     from rhaml_jax.amlnet.trainer import train_amlnet
@@ -123,7 +127,8 @@ def main(argv: list[str] | None = None) -> dict:
     source, val_source, label = (zoom_sources if args.stage == "zoom" else amlnet_sources)(args, cfg)
     if args.toy_data:
         print("warning: --toy-data: training on coloured rectangles (a trainer test), not on robot images")
-    res = train_amlnet(cfg, tc, args.out, source, val_source, resume=args.resume, data_label=label, progress=args.progress)
+    res = train_amlnet(cfg, tc, args.out, source, val_source, resume=args.resume, data_label=label,
+                       progress=args.progress, init=args.init)
     print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()
                                                               if k in ("dx_cm", "dy_cm", "range_pct", "bearing_deg",
                                                                        "dpsi_deg", "detection_acc")))

@@ -199,3 +199,26 @@ def test_exported_weights_load_without_optimizer_state(reference_run, tmp_path):
     assert net.cfg == CFG
     for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(res["params"])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_init_starts_from_the_given_weights(reference_run, tmp_path):
+    """--init: a fine-tuning run starts at the checkpoint's weights (its first validation
+    equals the checkpoint's), records where they came from, and refuses another model."""
+    from rhaml_jax.amlnet.checkpoint import export_weights
+    from rhaml_jax.amlnet.trainer import amlnet_task, initial_weights
+
+    out, res = reference_run
+    export_weights(out, tmp_path / "ship")
+    params, stats = initial_weights(CFG, tmp_path / "ship")
+    task, _ = amlnet_task(CFG, replace(TC, seed=99), num_devices=1, init=tmp_path / "ship")
+    for a, b, c in zip(jax.tree.leaves(task.params), jax.tree.leaves(params), jax.tree.leaves(res["params"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+    assert task.meta["initialised_from"] == str(tmp_path / "ship")
+    fresh, _ = amlnet_task(CFG, replace(TC, seed=99), num_devices=1)
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(fresh.params), jax.tree.leaves(task.params)))
+    with pytest.raises(RhamlError, match=r"--init .*holds model config 'micro'.*not the 'tiny'"):
+        initial_weights(get_config("tiny"), tmp_path / "ship")
+    with pytest.raises(RhamlError, match=r"--init .*not a checkpoint folder"):
+        initial_weights(CFG, tmp_path)

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhaml_jax.amlnet.checkpoint import check_config
+from rhaml_jax.amlnet.checkpoint import check_config, load_model
 from rhaml_jax.amlnet.config import ModelConfig, config_to_dict
 from rhaml_jax.amlnet.data import BatchSource, check_batch
 from rhaml_jax.amlnet.functional import build
@@ -116,22 +116,38 @@ def validate(predict, params, stats, val_source, n_batches: int, cfg, batch: int
     return pose_metrics(pred, np.concatenate(obs), np.concatenate(poses), getattr(cfg, "task", "localize"))
 
 
+def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]:
+    """(params, batch_stats) of the checkpoint folder `init` (a run or an exported one, e.g.
+    `rhaml_jax/checkpoints/amlnet_cpu`), to fine-tune from; it must hold the model `cfg`."""
+    if not (Path(init) / "checkpoints").is_dir():
+        raise RhamlError(f"--init {init}: not a checkpoint folder (no checkpoints/ inside)")
+    net, params, stats = load_model(init)
+    if net.cfg != cfg:
+        raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r} ({config_to_dict(net.cfg)}), "
+                         f"not the {cfg.name!r} being trained")
+    return params, stats
+
+
 def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | None = None,
-                num_devices: int | None = None) -> tuple[Task, tuple]:
-    """(the `rhaml_jax.training.Task` of AMLNet or its zoom stage, its shardings)."""
+                num_devices: int | None = None, init: str | Path | None = None) -> tuple[Task, tuple]:
+    """(the `rhaml_jax.training.Task` of AMLNet or its zoom stage, its shardings). `init`: a
+    checkpoint folder to start from instead of a random initialisation (fine-tuning)."""
     devs = devices(num_devices)
     if tc.batch % len(devs):
         raise RhamlError(f"--batch {tc.batch}: must be a multiple of the {len(devs)} devices")
     net = build(cfg, jax.random.key(tc.seed))
+    params, stats = (net.params, net.batch_stats) if init is None else initial_weights(cfg, init)
     tx, sched, steps, rep, bat = _compiled(cfg, tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip,
                                            tc.w_psi, tc.w_p, tuple(tc.w_xy), devs)
 
     def val(params, stats, put):
         return validate(steps.predict, params, stats, val_source, tc.val_batches, cfg, tc.batch, put)
 
-    task = Task(name=cfg.name, params=net.params, batch_stats=net.batch_stats, opt_init=tx.init,
-                grad_step=steps.grad_step, update=steps.update, schedule=sched,
-                meta={"model_config": config_to_dict(cfg)},
+    meta = {"model_config": config_to_dict(cfg)}
+    if init is not None:
+        meta["initialised_from"] = str(init)
+    task = Task(name=cfg.name, params=params, batch_stats=stats, opt_init=tx.init,
+                grad_step=steps.grad_step, update=steps.update, schedule=sched, meta=meta,
                 check_resume=lambda meta, where: check_config(meta, cfg, where),
                 check_batch=lambda b, where: check_batch(cfg, b, tc.batch, where),
                 validate=None if val_source is None else val, plot=plot_metrics)
@@ -141,9 +157,10 @@ def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | Non
 def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source: BatchSource,
                  val_source: BatchSource | None = None, *, resume: bool = False, data_label: str = "",
                  num_devices: int | None = None, progress: bool = True, stop_at: int | None = None,
-                 log: Callable[[str], None] = print) -> dict:
-    """Trains `cfg`; returns {"step", "loss", "val": {...}, "params", "batch_stats"}.
-    `stop_at` ends the run early at that step (as a kill would, after its checkpoint)."""
-    task, shardings = amlnet_task(cfg, tc, val_source, num_devices)
+                 log: Callable[[str], None] = print, init: str | Path | None = None) -> dict:
+    """Trains `cfg` (from the weights in the checkpoint folder `init`, if given); returns
+    {"step", "loss", "val": {...}, "params", "batch_stats"}. `stop_at` ends the run early at that
+    step (as a kill would, after its checkpoint)."""
+    task, shardings = amlnet_task(cfg, tc, val_source, num_devices, init)
     return fit(task, tc, out_dir, source, shardings=shardings, resume=resume, data_label=data_label,
                progress=progress, stop_at=stop_at, log=log)
