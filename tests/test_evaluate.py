@@ -72,3 +72,51 @@ def test_bad_input(setup, tmp_path):
         main(["--data", str(setup / "set"), "--amlnet", str(tmp_path)])
     with pytest.raises(RhamlError, match="scene 99 not found"):
         main(["--data", str(setup / "set"), "--scene", "99", "--amlnet", str(setup / "ckpt")])
+
+
+def test_a_scene_without_its_camera_file(setup, tmp_path):
+    import shutil
+
+    shutil.copytree(setup / "set", tmp_path / "set")
+    cam = next((tmp_path / "set").rglob("scene_camera.json"))
+    cam.unlink()
+    with pytest.raises(RhamlError, match=r"scene_camera.json: file not found"):
+        main(["--data", str(tmp_path / "set"), "--amlnet", str(setup / "ckpt"), "--modules", "iml"])
+
+
+def test_networks_made_for_another_robot(setup, tmp_path):
+    """A zoom stage sized for a 90 cm robot on the 46 cm Pioneer's data set: refused, naming both."""
+    from dataclasses import replace
+
+    cfg = replace(get_config("tiny_zoom"), zoom_length_m=0.9)
+    net = build(cfg, jax.random.key(1))
+    ck = Checkpoints(tmp_path / "zoom", keep=1)
+    ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
+            {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
+    ck.close()
+    with pytest.raises(RhamlError, match=r"obj_000001.ply: this data set's robot is 4\d cm long, but the networks "
+                                         r"were made for a 90 cm robot"):
+        main(["--data", str(setup / "set"), "--amlnet", str(setup / "ckpt"), "--zoom", str(tmp_path / "zoom"),
+              "--modules", "iml"])
+
+
+def test_pgo_metrics_match_its_own_per_frame_json(setup, tmp_path):
+    """With the pose graph: every frame carries a fused estimate; the metrics are
+    `metrics.summarize` of the observed rows, the rejected count is the rows' own."""
+    from rhaml_jax.data import write_scenario
+
+    write_scenario(tmp_path / "circle", "circle", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=0,
+                   frames=16, workers=1)
+    out = tmp_path / "eval.json"
+    main(["--data", str(tmp_path / "circle"), "--amlnet", str(setup / "ckpt"), "--json", str(out),
+          "--modules", "iml,pgo"])
+    res = json.loads(out.read_text())
+    rows, m = res["frames"], res["metrics"]
+    assert len(rows) == 16 and all(r["est"] is not None for r in rows)
+    obs = [r for r in rows if r["observed"]]
+    ref = metrics.summarize(np.array([r["est"] for r in obs]), np.array([r["gt"] for r in obs]))
+    for k in ("dx_cm", "dy_cm", "dpsi_deg"):
+        np.testing.assert_allclose(m[k], ref[k], rtol=1e-5)
+    np.testing.assert_allclose(m["ate"], ref["ate"], rtol=1e-4)
+    assert m["pgo_rejected"] == sum(r["detected"] and not r["pgo_inlier"] for r in rows)
+    assert m["modules"] == ["iml", "pgo"] and m["pgo_mode"] == "batch" and m["information"] == "noise_model"
