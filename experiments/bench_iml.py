@@ -20,7 +20,7 @@ def host_chain(frames, images, net, params, stats, zoom, batch=32):
     import jax
 
     from rhaml_jax.amlnet import decode
-    from rhaml_jax.amlnet.zoom import apply_correction, mirror_average, zoom_crop
+    from rhaml_jax.zoom import apply_correction, mirror_average, zoom_crop
     from rhaml_jax.data import network_image
 
     h, w = net.cfg.input_hw

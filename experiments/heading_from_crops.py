@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Is the Pioneer's heading learnable when the robot fills the input? A feasibility check.
 
-The zoom-in stage (`rhaml_jax.amlnet.zoom`) with its estimates set to the truth (no jitter):
+The zoom-in stage (`rhaml_jax.zoom`) with its estimates set to the truth (no jitter):
 crops around the true position, `--zoom` robot lengths wide, resampled to `--size` px; a small
 AMLNet (blocks (1, 1, 3, 1), global average pooling, the `axis` heading head) regresses the
 heading relative to the viewing ray. Prints the validation |dpsi| and its modulo-180 part
@@ -21,7 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rhaml_jax.amlnet.config import get_config  # noqa: E402
 from rhaml_jax.amlnet.trainer import TrainConfig, train_amlnet  # noqa: E402
-from rhaml_jax.amlnet.zoom import ZoomJitter, ZoomSource  # noqa: E402
+from rhaml_jax.zoom import ZoomJitter, ZoomSource  # noqa: E402
 from rhaml_jax.data import AugmentConfig, make_batch_fn  # noqa: E402
 
 

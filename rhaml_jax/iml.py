@@ -6,8 +6,8 @@ from a batch of full-resolution RGB images (any size and pinhole intrinsics) to 
 robot's planar pose in the observer's frame: AMLNet on the image resampled into its camera
 (`crop.network_box` + `crop.resample`), then, if the model has one, the zoom-in stage on a crop
 around AMLNet's estimate (`crop.zoom_box` + `crop.crop_image`: the pixels the zoom stage was
-trained on), optionally also on the mirrored crop (`amlnet.zoom.mirror_average`), and the
-correction applied (`amlnet.zoom.apply_correction`). Pure over (params, inputs), so it jits,
+trained on), optionally also on the mirrored crop (`zoom.mirror_average`), and the
+correction applied (`zoom.apply_correction`). Pure over (params, inputs), so it jits,
 vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
 
 `IMLModel` is the static part (network definitions and switches; hashed by identity, so each
@@ -64,8 +64,8 @@ def _as_8bit(x):
 def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     """images (B, H, W, 3) uint8 or float in [0, 255]; K (3, 3) or (B, 3, 3) their intrinsics."""
     from rhaml_jax.amlnet import decode
-    from rhaml_jax.amlnet.zoom import apply_correction, decode_correction, mirror_average
-    from rhaml_jax.amlnet.zoom import box as zoom_box
+    from rhaml_jax.zoom import apply_correction, decode_correction, mirror_average
+    from rhaml_jax.zoom import box as zoom_box
 
     net = model.amlnet
     B, H, W = images.shape[:3]

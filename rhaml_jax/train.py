@@ -68,20 +68,14 @@ def amlnet_sources(args: Args, cfg):
 
 def zoom_sources(args: Args, cfg):
     """(train source, validation source, label) for the zoom stage: crops of the BOP set's
-    observed frames around jittered estimates (`rhaml_jax.amlnet.zoom`)."""
+    observed frames around jittered estimates (`rhaml_jax.zoom`)."""
     if args.data is None or args.toy_data:
         raise RhamlError("--stage zoom: needs --data (a BOP training set with a val split); it has no generated or toy data")
     if getattr(cfg, "task", None) != "zoom":
         raise RhamlError(f"--stage zoom: --config {args.config} is not a zoom network (e.g. zoom_cpu)")
-    from rhaml_jax.amlnet.zoom import ZoomSource
-    from rhaml_jax.data import AugmentConfig, make_batch_fn
+    from rhaml_jax.zoom import zoom_batch_sources
 
-    tc = args.train
-    train = ZoomSource(args.data, "train", cfg, seed=tc.seed)
-    val = ZoomSource(args.data, "val", cfg, seed=tc.seed + 10_000, draws=1)
-    # two loader threads: a cold example is a PNG decode (~20 ms), the network step is cheap
-    return (make_batch_fn(train, tc.batch, tc.seed, AugmentConfig(), workers=2),
-            make_batch_fn(val, tc.batch, tc.seed + 10_000, None), f"zoom crops of BOP {args.data}")
+    return (*zoom_batch_sources(args.data, cfg, args.train.batch, args.train.seed), f"zoom crops of BOP {args.data}")
 
 
 def train_refiner(args: Args) -> dict:

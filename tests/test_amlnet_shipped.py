@@ -50,7 +50,7 @@ def test_shipped_checkpoint_localises_rendered_robots():
 def test_shipped_zoom_stage_finds_the_heading():
     """AMLNet + its shipped zoom-in stage on freshly rendered 640 x 480 images (positives only):
     the heading, random from AMLNet alone, comes out within a few degrees for most robots."""
-    from rhaml_jax.amlnet.zoom import apply_correction, zoom_crop
+    from rhaml_jax.zoom import apply_correction, zoom_crop
     from rhaml_jax.camera import DEFAULT_CAMERA
     from rhaml_jax.data import network_image, training_sample
     from rhaml_jax.render import as_mesh

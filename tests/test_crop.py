@@ -9,7 +9,7 @@ import numpy as np
 
 from rhaml_jax import camera, crop
 from rhaml_jax.amlnet import get_config
-from rhaml_jax.amlnet.zoom import crop_transform
+from rhaml_jax.zoom import crop_transform
 
 K = camera.DEFAULT_CAMERA.K
 

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from rhaml_jax.amlnet import build, decode, get_config, load_model
 from rhaml_jax.amlnet.checkpoint import Checkpoints
 from rhaml_jax.amlnet.config import config_to_dict
-from rhaml_jax.amlnet.zoom import ZoomSource, apply_correction, correction_targets, mirror_average, zoom_crop
+from rhaml_jax.zoom import ZoomSource, apply_correction, correction_targets, mirror_average, zoom_crop
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
 from rhaml_jax.data import load_rgb, network_image, read_bop
 from rhaml_jax.data import write_training_set

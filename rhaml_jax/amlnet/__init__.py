@@ -12,9 +12,9 @@ Public API:
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
   `shipped_checkpoint("amlnet_cpu" | "zoom_cpu")` (the weights in the package);
   `ToyRectangles` is a toy source for tests only;
-- zoom-in stage (`rhaml_jax.amlnet.zoom`): `zoom_crop`, `apply_correction`,
-  `correction_targets`, `ZoomSource` (a small AMLNet on a crop around AMLNet's estimate, which
-  supplies the heading the CPU-size network cannot see).
+
+The zoom-in stage, a small AMLNet (config task "zoom") on a crop around AMLNet's estimate, has
+its own package beside this one: `rhaml_jax.zoom` (its crop, targets, decoding, training data).
 """
 
 from rhaml_jax.amlnet.acn import acn, acn_reference

@@ -13,7 +13,7 @@ Named configs
 - ``paper_dw``: the paper network with depthwise ACN kernels (8.38 GMACs).
 - ``cpu``: the network that trains on the project's 2-core CPU machine in about two hours
   (see `CPU_RATIONALE`), plus its Table II ablation ``cpu_k0``, ``cpu_k3``, ``cpu_k35``.
-- ``zoom_cpu``: the zoom-in stage that goes with ``cpu`` (`rhaml_jax.amlnet.zoom`): 64 x 64
+- ``zoom_cpu``: the zoom-in stage that goes with ``cpu`` (`rhaml_jax.zoom`): 64 x 64
   crops around AMLNet's estimate, its range, bearing and heading corrections out.
 - ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
 - ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_zoom``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
@@ -56,7 +56,7 @@ class AMLNetConfig:
       (o, x, y, cos psi, sin psi) and decodes psi with atan2; "axis" adds (cos 2psi, sin 2psi),
       which survive a front/back look-alike robot (`loss` says why; documented options).
     task: "localize" (AMLNet: the whole image in, the pose out) or "zoom" (the zoom-in stage,
-      `rhaml_jax.amlnet.zoom`: a crop around a first estimate in, its correction out). The crop
+      `rhaml_jax.zoom`: a crop around a first estimate in, its correction out). The crop
       is `zoom_factor` times the robot's projected length `zoom_length_m` wide, centred on its
       point `zoom_centre_z_m` above the ground.
     pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
@@ -152,7 +152,7 @@ At this input size the robot is 5-40 pixels wide, and the whole-image network le
 it is (bearing error ~2 deg, range error ~8 %) but not which way it faces: its heading outputs
 stayed at the mean predictor (also with the "axis" head, which survives the Pioneer's
 front/back look-alike ends, in a run stopped at step 950).  So `cpu` comes with a zoom-in
-stage, `zoom_cpu` (`rhaml_jax.amlnet.zoom`): a 1.3 M-parameter network of the same blocks on a
+stage, `zoom_cpu` (`rhaml_jax.zoom`): a 1.3 M-parameter network of the same blocks on a
 64 x 64 crop of the full-resolution image around the estimate, twice the robot's projected
 length wide, which regresses the range, bearing and heading corrections."""
 
