@@ -96,40 +96,20 @@ def run_ours(seq, cfg, repeats):
 
 
 def run_gtsam(seq, cfg, repeats):
-    import gtsam
-
     rv = jax.tree.map(jnp.asarray, seq.rendezvous)
     pg, g = pgo.fusion_graph(rv, cfg, jnp.asarray(seq.valid))
-    fg = gtsam.NonlinearFactorGraph()
-    known = []
-    for e, ((i, j), z, L, rob) in enumerate(zip(pg.edges, pg.measurements, pg.information, pg.robust_edges)):
-        fg.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(L)))
-        if not rob:
-            known.append(e)
-    fg.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*pg.poses[0]), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-    known.append(fg.size() - 1)
-    init = gtsam.Values()
-    for k, p in enumerate(pg.poses):
-        init.insert(k, gtsam.Pose2(*p))
-    mutual = np.flatnonzero(pg.robust_edges)
-    w0 = np.ones(fg.size())
-    w0[mutual] = np.asarray(g.init_weights)[np.asarray(g.usable)]
 
     def solve():
-        params = gtsam.GncGaussNewtonParams(gtsam.GaussNewtonParams())
-        params.setKnownInliers(known)
-        opt = gtsam.GncGaussNewtonOptimizer(fg, init, params)
-        opt.setInlierCostThresholds(cfg.barc_sq)
-        opt.setWeights(w0)
+        opt, mutual = pgo.gtsam_gnc(pg, g, cfg)
         t = time.perf_counter()
         res = opt.optimize()
-        return res, opt.getWeights(), time.perf_counter() - t
+        return res, opt.getWeights(), time.perf_counter() - t, mutual
 
     ts = []
     for _ in range(repeats + 1):
-        res, w, t = solve()
+        res, w, t, mutual = solve()
         ts.append(t)
-    P = np.array([[res.atPose2(k).x(), res.atPose2(k).y(), res.atPose2(k).theta()] for k in range(pg.num_nodes)])
+    P = pgo.gtsam_poses(res, pg.num_nodes)
     A, B = P[0::2], P[1::2]
     a_obs = seq.rendezvous.a_observes
     rel = np.where(a_obs[:, None], between(A[1:], B[1:]), between(B[1:], A[1:]))

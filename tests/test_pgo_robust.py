@@ -17,7 +17,8 @@ from rhaml_jax.data import circle, sine
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.metrics import ate
 from rhaml_jax.pgo import (
-    FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fusion_graph, observation_from_xy_yaw_rp,
+    FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fusion_graph, gtsam_gnc, gtsam_poses,
+    observation_from_xy_yaw_rp,
     odometry_information, simulate_static_observer, simulate_two_robots,
 )
 from rhaml_jax.pgo._fusion import _inputs
@@ -182,33 +183,15 @@ def test_online_row_k_equals_batch_on_the_first_k_plus_1():
 
 
 def test_matches_gtsam_gnc_optimizer_on_the_same_graph():
-    gtsam = pytest.importorskip("gtsam", reason="gtsam (pip package) is the reference for this test")
+    pytest.importorskip("gtsam", reason="gtsam (pip package) is the reference for this test")
     seq = simulate_static_observer(sine(K), 6, flip_fraction=0.3, gross_fraction=0.15)
     rv = _dev(seq)
     cfg = CFG
     pg, g = fusion_graph(rv, cfg)
     r = fuse_jit(rv, cfg)
-    fg = gtsam.NonlinearFactorGraph()
-    known = []
-    for e, ((i, j), z, L, rob) in enumerate(zip(pg.edges, pg.measurements, pg.information, pg.robust_edges)):
-        fg.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(L)))
-        if not rob:
-            known.append(e)
-    fg.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*pg.poses[0]), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-    known.append(fg.size() - 1)
-    init = gtsam.Values()
-    for k, p in enumerate(pg.poses):
-        init.insert(k, gtsam.Pose2(*p))
-    params = gtsam.GncGaussNewtonParams(gtsam.GaussNewtonParams())
-    params.setKnownInliers(known)
-    opt = gtsam.GncGaussNewtonOptimizer(fg, init, params)
-    opt.setInlierCostThresholds(cfg.barc_sq)
-    w0 = np.ones(fg.size())
-    mutual = np.flatnonzero(pg.robust_edges)
-    w0[mutual] = np.asarray(g.init_weights)[np.asarray(g.usable)]
-    opt.setWeights(w0)
+    opt, mutual = gtsam_gnc(pg, g, cfg)
     res = opt.optimize()
-    ref = np.array([[res.atPose2(k).x(), res.atPose2(k).y(), res.atPose2(k).theta()] for k in range(pg.num_nodes)])
+    ref = gtsam_poses(res, pg.num_nodes)
     ours = np.stack([np.asarray(r.poses_a), np.asarray(r.poses_b)], 1).reshape(-1, 3)
     np.testing.assert_allclose(np.asarray(r.weights)[np.asarray(g.usable)], np.asarray(opt.getWeights())[mutual],
                                atol=1e-6)

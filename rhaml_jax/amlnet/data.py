@@ -24,9 +24,14 @@ __all__ = ["Batch", "BatchSource", "ToyRectangles", "check_batch"]
 
 
 class Batch(NamedTuple):
+    """One training batch. `pose` is the regression target: for AMLNet the robot's (x, y, psi)
+    in the observer's frame; for a zoom network (config task "zoom") not a pose but the
+    correction t = (log(r / r^), b - b^, psi - b^) relative to the estimate the crop was taken
+    around (`rhaml_jax.zoom.correction_targets`)."""
+
     images: np.ndarray  # (B, H, W, 3) float32 in [0, 1]
     observed: np.ndarray  # (B,) float32, 1 = robot in view
-    pose: np.ndarray  # (B, 3) float32 (x, y, psi) in the observer's frame; any value when unobserved
+    pose: np.ndarray  # (B, 3) float32 regression target (see above); any value when unobserved
 
 
 class BatchSource(Protocol):

@@ -13,12 +13,14 @@ Public API:
   `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
 - Robust fusion (consensus + GNC-TLS, information from noise models): `OdometryNoise`,
   `FusionConfig`, `FusionResult`, `fuse` / `fuse_jit` (batch), `fuse_online` /
-  `fuse_online_jit` (row k from rendezvous <= k), `fusion_graph` (the graph GNC sees, host side),
+  `fuse_online_jit` (row k from rendezvous <= k), `fusion_graph` (the graph GNC sees, host side;
+  `gtsam_gnc` hands it to GTSAM's GncOptimizer, the reference),
   `odometry_information`, `rendezvous_from_frames` (per-frame arrays -> Rendezvous);
   simulators `simulate_static_observer`, `simulate_two_robots` (`FusionSequence`).
 """
 
 from ._chordal import chordal_initialization
+from ._gtsam import gtsam_gnc, gtsam_poses
 from ._fusion import (
     FusionConfig,
     FusionGraph,
@@ -62,6 +64,6 @@ __all__ = [
     "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pgo_jit", "rhaml_pose_graph",
     "observation_from_xy_yaw_rp",
     "OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "fuse", "fuse_jit", "fuse_online",
-    "fuse_online_jit", "fusion_graph", "odometry_information", "rendezvous_from_frames",
+    "fuse_online_jit", "fusion_graph", "gtsam_gnc", "gtsam_poses", "odometry_information", "rendezvous_from_frames",
     "FusionSequence", "simulate_static_observer", "simulate_two_robots",
 ]
