@@ -60,6 +60,9 @@ class Args:
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
     batch: int = 32
     """frames per network call"""
+    allow_other_robot: bool = False
+    """run networks made for another robot than the data set's (a deliberate transfer test; by
+    default that is refused, comparing the robot fingerprints the checkpoints store)"""
 
 
 def _table(m: dict) -> str:
@@ -87,39 +90,35 @@ def score(est: np.ndarray, called: np.ndarray, observed: np.ndarray, gt: np.ndar
                    "frames": len(observed), "observed_frames": int(observed.sum())}
 
 
-def _check_robot(args: Args, zoom_net) -> None:
-    """The data set's robot must be the one the networks were made for: the zoom stage is sized
-    to its robot's length (`zoom_length_m`); refuses a data set whose model differs by > 15 %."""
+def _data_robot(args: Args):
+    """The data set's robot model (models/obj_000001.ply), or None (with a warning) without one;
+    --zoom-mirror is refused for a robot that is not left-right symmetric."""
     from rhaml_jax.data import bop_model_path, load_bop_model
 
     path = bop_model_path(args.data)
     if not path.exists():
         print(f"rhaml_jax.evaluate: warning: {path} not found: cannot check the data set's robot "
               "(its size, its symmetry for --zoom-mirror)", file=sys.stderr)
-        return
+        return None, path
     model = load_bop_model(args.data)
-    if zoom_net is not None:
-        length, want = float(model.extents[0]), float(zoom_net.cfg.zoom_length_m)
-        if abs(length / want - 1) > 0.15:
-            raise RhamlError(f"{path}: this data set's robot is {100 * length:.0f} cm long, but the networks were made "
-                             f"for a {100 * want:.0f} cm robot ({zoom_net.cfg.name}): train networks for this robot "
-                             "(python -m rhaml_jax.train) or pass --amlnet/--zoom checkpoints made for it")
     if args.zoom_mirror:
         from rhaml_jax.iml import check_mirror_symmetric
 
         check_mirror_symmetric(model, path)
+    return model, path
 
 
 def _load(args: Args, modules):
     from rhaml_jax import iml, pgo, pipeline
 
-    iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror)
-    _check_robot(args, iml_model.zoom)
+    robot, path = _data_robot(args)
+    check = None if args.allow_other_robot else robot
+    iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror, check, str(path))
     refiner = refiner_params = None
     if "ir" in modules:
         from rhaml_jax import refine
 
-        refiner, refiner_params = refine.load_stage(args.refiner, args.data)
+        refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))

@@ -120,12 +120,17 @@ def check_mirror_symmetric(model, model_path) -> None:
 
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
-             zoom_mirror: bool = False) -> tuple[IMLModel, IMLParams]:
+             zoom_mirror: bool = False, robot=None, robot_source: str = "the data set") -> tuple[IMLModel, IMLParams]:
     """IML from checkpoint folders. Defaults: the shipped `amlnet_cpu` and, with it, its own
-    `zoom_cpu` (a user's `amlnet` gets no zoom stage unless `zoom` is given)."""
+    `zoom_cpu` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
+    RobotModel, from `robot_source`), networks made for another robot are refused: by the
+    fingerprint each checkpoint stores (`robots.check_same_robot`) or, for a zoom stage from
+    before fingerprints, by its robot length (`zoom_length_m`, 15 %)."""
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
+    from rhaml_jax.amlnet.checkpoint import checkpoint_robot
 
-    net, p, s = load_model(amlnet or shipped_checkpoint("amlnet_cpu"))
+    amlnet_dir = amlnet or shipped_checkpoint("amlnet_cpu")
+    net, p, s = load_model(amlnet_dir)
     if getattr(net.cfg, "task", "localize") != "localize":
         raise RhamlError(f"--amlnet {amlnet}: holds a zoom-in stage ({net.cfg.name}), not AMLNet")
     if zoom is None and amlnet is None and not no_zoom:
@@ -138,5 +143,18 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
         zp = (zparams, zstats)
     if zoom_mirror and znet is None:
         raise RhamlError("--zoom-mirror: there is no zoom-in stage to mirror (--no-zoom, or --amlnet without --zoom)")
+    if robot is not None:
+        from rhaml_jax.robots import check_same_robot
+
+        check_same_robot(checkpoint_robot(amlnet_dir), robot, f"AMLNet checkpoint {amlnet_dir}", robot_source)
+        if znet is not None:
+            stored = checkpoint_robot(zoom)
+            check_same_robot(stored, robot, f"zoom-in stage checkpoint {zoom}", robot_source)
+            length, want = float(robot.extents[0]), float(znet.cfg.zoom_length_m)
+            if stored is None and abs(length / want - 1) > 0.15:
+                raise RhamlError(f"{robot_source}: this robot is {100 * length:.0f} cm long, but the networks were made "
+                                 f"for a {100 * want:.0f} cm robot ({znet.cfg.name}): train networks for this robot "
+                                 "(python -m rhaml_jax.fit), pass --amlnet/--zoom checkpoints made for it, or "
+                                 "--allow-other-robot for a deliberate transfer test")
     return IMLModel(net, znet, zoom_mirror), IMLParams((p, s), zp)
 

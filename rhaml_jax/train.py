@@ -51,6 +51,16 @@ class Args:
     """show a progress bar"""
 
 
+def robot_of(args: Args) -> dict:
+    """The fingerprint of the robot the training data show: the BOP set's model when --data has
+    one, else --robot."""
+    from rhaml_jax.data import bop_model_path, load_bop_model
+    from rhaml_jax.robots import fingerprint, load_robot
+
+    has_model = args.data is not None and bop_model_path(args.data).exists()
+    return fingerprint(load_bop_model(args.data) if has_model else load_robot(args.robot)).to_dict()
+
+
 def amlnet_sources(args: Args, cfg):
     """(train source, validation source, label) for the AMLNet stage."""
     tc = args.train
@@ -122,7 +132,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.toy_data:
         print("warning: --toy-data: training on coloured rectangles (a trainer test), not on robot images")
     res = train_amlnet(cfg, tc, args.out, source, val_source, resume=args.resume, data_label=label,
-                       progress=args.progress, init=args.init)
+                       progress=args.progress, init=args.init, robot=None if args.toy_data else robot_of(args))
     print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()
                                                               if k in ("dx_cm", "dy_cm", "range_pct", "bearing_deg",
                                                                        "dpsi_deg", "detection_acc")))

@@ -94,10 +94,28 @@ def test_networks_made_for_another_robot(setup, tmp_path):
     ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
             {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
     ck.close()
-    with pytest.raises(RhamlError, match=r"obj_000001.ply: this data set's robot is 4\d cm long, but the networks "
+    with pytest.raises(RhamlError, match=r"obj_000001.ply: this robot is 4\d cm long, but the networks "
                                          r"were made for a 90 cm robot"):
         main(["--data", str(setup / "set"), "--amlnet", str(setup / "ckpt"), "--zoom", str(tmp_path / "zoom"),
               "--modules", "iml"])
+
+
+def test_fingerprint_of_another_robot_is_refused_unless_allowed(setup, tmp_path):
+    """A checkpoint that stores the TurtleBot-sized robot's fingerprint, on the Pioneer's data set:
+    refused naming both robots; --allow-other-robot runs it anyway."""
+    from rhaml_jax.robots import RobotFingerprint
+
+    other = RobotFingerprint("turtlebot3_burger", (0.138, 0.178, 0.191), 0.295, "8866043173b6941b")
+    net, params, stats = load_model(setup / "ckpt")
+    ck = Checkpoints(tmp_path / "other", keep=1)
+    ck.save(0, {"params": params, "batch_stats": stats},
+            {"model_config": config_to_dict(net.cfg), "weights_only": True, "step": 0, "robot": other.to_dict()})
+    ck.close()
+    args = ["--data", str(setup / "set"), "--amlnet", str(tmp_path / "other"), "--modules", "iml"]
+    with pytest.raises(RhamlError, match=r"AMLNet checkpoint .* was made for robot 'turtlebot3_burger' \(13.8 x 17.8 x "
+                                         r"19.1 cm.*but .*obj_000001.ply is robot 'obj_000001' \(45.5 x 38.1"):
+        main(args)
+    assert main(args + ["--allow-other-robot"])["metrics"]["frames"] == 13
 
 
 def test_pgo_metrics_match_its_own_per_frame_json(setup, tmp_path):

@@ -168,3 +168,41 @@ def test_info_cli_and_errors(tmp_path):
         r = _info("--robot", bad)
         assert r.returncode == 2 and "Traceback" not in r.stderr, (bad, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("error: ") and culprit in r.stderr, r.stderr
+
+
+def test_fingerprint_ignores_paint_and_ply_round_trips_but_not_size(tmp_path):
+    """The same geometry repainted, or written to a BOP ply (mm) and read back, is the same robot;
+    the robot scaled by 10 % or a TurtleBot-sized box is not; a pre-fingerprint record (name and
+    extents only) is compared on its extents."""
+    import dataclasses
+
+    from rhaml_jax.camera import DEFAULT_CAMERA
+    from rhaml_jax.data import load_bop_model, write_dataset_header
+    from rhaml_jax.robots import RobotFingerprint, check_same_robot, fingerprint
+
+    m = load_robot("pioneer3dx")
+    fp = fingerprint(m)
+    blue = dataclasses.replace(m, face_colors=np.tile(np.float32([0.1, 0.2, 0.9]), (len(m.faces), 1)))
+    assert fingerprint(blue) == fp
+    write_dataset_header(tmp_path, m, DEFAULT_CAMERA)
+    back = fingerprint(load_bop_model(tmp_path))
+    assert back.same_robot(fp) and back.geometry_hash == fp.geometry_hash and back.name == "obj_000001"
+    big = dataclasses.replace(m, vertices=m.vertices * 1.1)
+    assert not fingerprint(big).same_robot(fp)
+    assert RobotFingerprint.from_dict(fp.to_dict()) == fp
+    legacy = {"name": "pioneer3dx", "extents_m": list(fp.extents_m)}
+    check_same_robot(legacy, m, "refiner", "the data set")
+    with pytest.raises(RhamlError, match=r"refiner was made for robot 'pioneer3dx' \(45.5 x 38.1 x 23.7 cm\), but the "
+                                         r"data set is robot 'pioneer3dx' \(50.\d x 41.9"):
+        check_same_robot(legacy, big, "refiner", "the data set")
+    with pytest.raises(RhamlError, match="not a robot fingerprint"):
+        RobotFingerprint.from_dict({"name": "x", "extents_m": [1, 2]})
+
+
+def test_fingerprint_tells_the_turtlebot_from_the_pioneer():
+    urdf = shared_path("robots", "turtlebot3_burger", "urdf", "turtlebot3_burger.main.urdf")
+    from rhaml_jax.robots import fingerprint
+
+    tb, pi = fingerprint(load_robot(str(urdf))), fingerprint(load_robot("pioneer3dx"))
+    assert not tb.same_robot(pi) and tb.geometry_hash != pi.geometry_hash
+    np.testing.assert_allclose(tb.extents_m, (0.138, 0.178, 0.191), atol=2e-3)

@@ -222,3 +222,17 @@ def test_init_starts_from_the_given_weights(reference_run, tmp_path):
         initial_weights(get_config("tiny"), tmp_path / "ship")
     with pytest.raises(RhamlError, match=r"--init .*not a checkpoint folder"):
         initial_weights(CFG, tmp_path)
+
+
+def test_checkpoints_store_the_robot_and_resume_refuses_another(tmp_path):
+    from rhaml_jax.amlnet.checkpoint import checkpoint_robot
+    from rhaml_jax.robots import RobotFingerprint
+
+    pioneer = RobotFingerprint("pioneer3dx", (0.455, 0.381, 0.237), 1.011, "f1429b7d41f0e75c").to_dict()
+    turtle = RobotFingerprint("turtlebot3_burger", (0.138, 0.178, 0.191), 0.295, "8866043173b6941b").to_dict()
+    tc = replace(TC, steps=2, val_every=100)
+    train_amlnet(CFG, tc, tmp_path, *_sources(tc), progress=False, num_devices=1, log=lambda s: None, robot=pioneer)
+    assert checkpoint_robot(tmp_path) == pioneer
+    with pytest.raises(RhamlError, match=r"--resume .*: this run trains robot 'pioneer3dx' .*not 'turtlebot3_burger'"):
+        train_amlnet(CFG, replace(tc, steps=4), tmp_path, *_sources(tc), progress=False, num_devices=1,
+                     log=lambda s: None, robot=turtle, resume=True)

@@ -100,6 +100,19 @@ def load_model(run_dir: str | Path, step: int | None = None) -> tuple[Net, objec
     return net, state["params"], state["batch_stats"]
 
 
+def checkpoint_robot(run_dir: str | Path) -> dict | None:
+    """The robot fingerprint stored in a checkpoint folder's latest meta (`rhaml_jax.robots
+    .fingerprint`), or None for a checkpoint from before fingerprints."""
+    ck = Checkpoints(run_dir, read_only=True)
+    try:
+        step = ck.latest_step()
+        if step is None:
+            raise RhamlError(f"{run_dir}: no checkpoint saved yet")
+        return ck.meta(step).get("robot")
+    finally:
+        ck.close()
+
+
 def export_weights(run_dir: str | Path, out_dir: str | Path, step: int | None = None, extra_meta: dict | None = None) -> Path:
     """Writes the weights of a run's checkpoint (no optimizer state: a third of the size) as a
     checkpoint folder of the same layout, which `load_model` reads; returns `out_dir`."""

@@ -129,9 +129,12 @@ def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]
 
 
 def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | None = None,
-                num_devices: int | None = None, init: str | Path | None = None) -> tuple[Task, tuple]:
+                num_devices: int | None = None, init: str | Path | None = None,
+                robot: dict | None = None) -> tuple[Task, tuple]:
     """(the `rhaml_jax.training.Task` of AMLNet or its zoom stage, its shardings). `init`: a
-    checkpoint folder to start from instead of a random initialisation (fine-tuning)."""
+    checkpoint folder to start from instead of a random initialisation (fine-tuning); `robot`:
+    the fingerprint of the robot the data show (`robots.fingerprint(...).to_dict()`), stored in
+    every checkpoint; a resumed run must be of the same robot."""
     devs = devices(num_devices)
     if tc.batch % len(devs):
         raise RhamlError(f"--batch {tc.batch}: must be a multiple of the {len(devs)} devices")
@@ -146,9 +149,21 @@ def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | Non
     meta = {"model_config": config_to_dict(cfg)}
     if init is not None:
         meta["initialised_from"] = str(init)
+    if robot is not None:
+        meta["robot"] = robot
+
+    def check_resume(stored, where):
+        check_config(stored, cfg, where)
+        if robot is not None and stored.get("robot") is not None:
+            from rhaml_jax.robots import RobotFingerprint
+
+            a, b = (RobotFingerprint.from_dict(r, where) for r in (stored["robot"], robot))
+            if not a.same_robot(b):
+                raise RhamlError(f"{where}: this run trains robot {a.describe()}, not {b.describe()}")
+
     task = Task(name=cfg.name, params=params, batch_stats=stats, opt_init=tx.init,
                 grad_step=steps.grad_step, update=steps.update, schedule=sched, meta=meta,
-                check_resume=lambda meta, where: check_config(meta, cfg, where),
+                check_resume=check_resume,
                 check_batch=lambda b, where: check_batch(cfg, b, tc.batch, where),
                 validate=None if val_source is None else val, plot=plot_metrics)
     return task, (rep, bat)
@@ -157,10 +172,11 @@ def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | Non
 def train_amlnet(cfg: ModelConfig, tc: TrainConfig, out_dir: str | Path, source: BatchSource,
                  val_source: BatchSource | None = None, *, resume: bool = False, data_label: str = "",
                  num_devices: int | None = None, progress: bool = True, stop_at: int | None = None,
-                 log: Callable[[str], None] = print, init: str | Path | None = None) -> dict:
+                 log: Callable[[str], None] = print, init: str | Path | None = None,
+                 robot: dict | None = None) -> dict:
     """Trains `cfg` (from the weights in the checkpoint folder `init`, if given); returns
     {"step", "loss", "val": {...}, "params", "batch_stats"}. `stop_at` ends the run early at that
     step (as a kill would, after its checkpoint)."""
-    task, shardings = amlnet_task(cfg, tc, val_source, num_devices, init)
+    task, shardings = amlnet_task(cfg, tc, val_source, num_devices, init, robot)
     return fit(task, tc, out_dir, source, shardings=shardings, resume=resume, data_label=data_label,
                progress=progress, stop_at=stop_at, log=log)

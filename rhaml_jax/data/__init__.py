@@ -2,7 +2,8 @@
 
 - `training_sample(mesh, camera, seed, index)`: one training image, a pure function of (seed, index).
 - `circle`, `sine`, `rendezvous`, `noisy_odometry`: DESIGN.md section 3's trajectories and noise.
-- `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets.
+- `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets;
+  `write_dataset_header`: a BOP set's camera.json and models/ (the robot in millimetres).
 - `read_tum`, `write_tum`: trajectory files.
 - `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
 - `AppearanceConfig`: the v2 appearance randomisation's factors and ranges (`SynthConfig.appearance`;
@@ -11,7 +12,8 @@
   image's look (a pure function of (seed, index)).
 """
 
-from rhaml_jax.data._bop import BopFrame, bop_model_path, load_bop_model, load_mask, load_rgb, read_bop, scene_folders
+from rhaml_jax.data._bop import (BopFrame, bop_model_path, load_bop_model, load_mask, load_rgb, read_bop, scene_folders,
+                                 write_dataset_header)
 from rhaml_jax.data._synth import Sample, SynthConfig, sample_rng, scenario_frame, training_sample
 from rhaml_jax.data._trajectories import Room, circle, noisy_odometry, rendezvous, sine
 from rhaml_jax.data._tum import read_tum, write_tum
@@ -20,7 +22,7 @@ from rhaml_jax.data._writer import write_scenario, write_training_set
 __all__ = [
     "BopFrame", "bop_model_path", "Room", "Sample", "SynthConfig", "circle", "load_bop_model", "load_mask", "load_rgb",
     "noisy_odometry", "read_bop", "read_tum", "rendezvous", "sample_rng", "scenario_frame",
-    "scene_folders", "sine", "training_sample", "write_scenario", "write_training_set", "write_tum",
+    "scene_folders", "sine", "training_sample", "write_dataset_header", "write_scenario", "write_training_set", "write_tum",
 ]
 
 from rhaml_jax.data._augment import AugmentConfig, augment  # noqa: E402

@@ -215,15 +215,16 @@ def shipped_refiner(model=None) -> Refiner:
     return load_refiner(shipped_checkpoint("refiner_cpu"), model)
 
 
-def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None):
+def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True):
     """The pipeline's IR stage: (RefineConfig, (Refiner, render.Mesh)) for `pipeline.PipelineModel
     .refiner` and `PipelineParams.refiner`. The robot is the BOP data set's model
     (`models/obj_000001.ply`) when `data_dir` has one, else the built-in robot; a refiner
-    checkpoint made for another robot is refused. Default checkpoint: the shipped refiner_cpu."""
+    checkpoint made for another robot is refused (unless not `check_robot`: a deliberate transfer
+    test). Default checkpoint: the shipped refiner_cpu."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
 
     robot = load_bop_model(data_dir) if data_dir is not None and bop_model_path(data_dir).exists() else load_robot("pioneer3dx")
-    refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), robot)
+    refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), robot if check_robot else None)
     return RefineConfig(), (refiner, render.as_mesh(robot))

@@ -172,8 +172,9 @@ def refiner_task(cfg: N.RefinerConfig, tc, mesh, model, val_source=None, num_dev
         rows = [ev(params, *(put(x) for x in val_source(i))) for i in range(tc.val_batches)]
         return {k: float(np.mean([float(r[k]) for r in rows])) for k in rows[0]}
 
-    meta = {"model_config": N.config_to_dict(cfg), "kind": "refiner", "robot": {"name": model.name,
-            "extents_m": [round(float(e), 5) for e in model.extents]}}
+    from rhaml_jax.robots import fingerprint
+
+    meta = {"model_config": N.config_to_dict(cfg), "kind": "refiner", "robot": fingerprint(model).to_dict()}
 
     def check_resume(stored, where):
         if stored.get("kind") != "refiner" or N.config_from_dict(stored["model_config"]) != cfg:
@@ -188,10 +189,11 @@ def refiner_task(cfg: N.RefinerConfig, tc, mesh, model, val_source=None, num_dev
 
 
 def check_robot(meta: dict, model, where: str) -> None:
-    """Refuses a refiner checkpoint trained on another robot: extents differing by more than 2 mm
-    (the name is reported, not compared: a BOP set's model is called obj_000001)."""
-    r = meta.get("robot", {})
-    ext = np.asarray(r.get("extents_m", [np.nan] * 3), np.float64)
-    if not np.all(np.abs(ext - np.asarray(model.extents)) < 2e-3):
-        raise RhamlError(f"{where}: refiner checkpoint is for robot {r.get('name')!r} (extents {r.get('extents_m')} m), "
-                         f"not {model.name!r} ({[round(float(e), 3) for e in model.extents]} m)")
+    """Refuses a refiner checkpoint trained on another robot (`robots.RobotFingerprint.same_robot`:
+    extents and surface area; the name is reported, not compared: a BOP set's model is called
+    obj_000001)."""
+    from rhaml_jax.robots import RobotFingerprint, fingerprint
+
+    mine, theirs = RobotFingerprint.from_dict(meta.get("robot", {}), where), fingerprint(model)
+    if not mine.same_robot(theirs):
+        raise RhamlError(f"{where}: refiner checkpoint is for robot {mine.describe()}, not {theirs.describe()}")
