@@ -4,7 +4,8 @@ benchmark and on our own scenarios: the BENCHMARKS.md section "Held-out appearan
   python -m rhaml_jax.generate --out /work/data/heldout --heldout --workers 1     # outside the repo
   python -m rhaml_jax.generate --out /work/data/ours/circle --scenario circle
   python -m rhaml_jax.generate --out /work/data/ours/sine --scenario sine
-  python experiments/heldout_iml.py --heldout /work/data/heldout --ours /work/data/ours --out /work/data/heldout_results
+  python experiments/heldout_iml.py --heldout /work/data/heldout --ours /work/data/ours --out /work/data/heldout_results \
+      [--val /work/data/v2_train] [--evaluate-args="--amlnet CKPT --zoom CKPT"]
 
 For each data set it runs `python -m rhaml_jax.evaluate --data D --modules iml --zoom-mirror --json J`
 (the shipped checkpoints) and, from J, over the frames with the robot in view that were detected:
@@ -17,11 +18,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
-
-import numpy as np
 
 
 def evaluate(data: Path, out_json: Path, extra: list[str]) -> dict:
@@ -34,24 +34,9 @@ def evaluate(data: Path, out_json: Path, extra: list[str]) -> dict:
 
 
 def summary(res: dict) -> dict:
-    from rhaml_jax import metrics
+    from rhaml_jax.metrics import frame_summary
 
-    frames = res["frames"]
-    used = [f for f in frames if f["observed"] and f["est"] is not None]
-    det = res["metrics"]["detection"]
-    row = {"frames": len(frames), "observed": sum(f["observed"] for f in frames), "detection": det,
-           "detection_accuracy": res["metrics"]["detection_accuracy"], "n": len(used)}
-    if not used:
-        return row
-    est, gt = np.array([f["est"] for f in used]), np.array([f["gt"] for f in used])
-    d = est - gt
-    e = np.abs(np.stack([d[:, 0] * 100, d[:, 1] * 100, np.degrees(np.arctan2(np.sin(d[:, 2]), np.cos(d[:, 2])))], 1))
-    for k, name in enumerate(("dx_cm", "dy_cm", "dpsi_deg")):
-        row[name] = [float(e[:, k].mean()), float(e[:, k].std()), float(np.median(e[:, k]))]
-    row["ate"] = float(metrics.summarize(est, gt)["ate"])
-    row["flips"] = int((e[:, 2] > 90).sum())
-    row["median_range_ratio"] = float(np.median(np.hypot(est[:, 0], est[:, 1]) / np.hypot(gt[:, 0], gt[:, 1])))
-    return row
+    return frame_summary(res["frames"]) | {"detection_accuracy": res["metrics"]["detection_accuracy"]}
 
 
 def table(rows: dict) -> str:
@@ -75,17 +60,21 @@ def main() -> None:
     p.add_argument("--heldout", type=Path, default=Path("/work/data/heldout"))
     p.add_argument("--ours", type=Path, default=Path("/work/data/ours"), help="folder holding our circle/ and sine/")
     p.add_argument("--out", type=Path, default=Path("/work/data/heldout_results"))
-    p.add_argument("--evaluate-args", nargs="*", default=[], help="extra evaluate flags (e.g. --amlnet CKPT --zoom CKPT)")
+    p.add_argument("--val", type=Path, default=None, help="a BOP training set whose val split is also evaluated")
+    p.add_argument("--evaluate-args", default="", help='extra evaluate flags as one string (e.g. "--amlnet CKPT --zoom CKPT")')
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     sets = {f"ours: {n}": a.ours / n for n in ("circle", "sine")}
+    if a.val is not None:
+        sets["ours: validation split"] = a.val
     sets |= {f"held-out: {n}": a.heldout / n for n in ("circle", "sine", "background", "random")}
     rows = {}
     for name, d in sets.items():
         if not (d / "camera.json").exists():
             print(f"skipping {name}: {d} not found", file=sys.stderr)
             continue
-        rows[name] = summary(evaluate(d, a.out / (name.replace(": ", "_") + ".json"), a.evaluate_args))
+        extra = shlex.split(a.evaluate_args) + (["--split", "val"] if d == a.val else [])
+        rows[name] = summary(evaluate(d, a.out / (name.replace(": ", "_").replace(" ", "_") + ".json"), extra))
     md = table(rows)
     print(md)
     (a.out / "summary.json").write_text(json.dumps(rows, indent=1))

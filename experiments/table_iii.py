@@ -2,7 +2,7 @@
 both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
 
   python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
-      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N]
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT]
 
 Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
 """
@@ -22,6 +22,8 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--combos", nargs="+", default=["iml", "iml,pgo"])
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario (default: all)")
+    ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint folder (default: the shipped one)")
+    ap.add_argument("--zoom", default=None, help="zoom-stage checkpoint folder (default: the shipped one)")
     a = ap.parse_args()
     from rhaml_jax import iml, pgo, tune_allocator
 
@@ -30,7 +32,7 @@ def main():
     from rhaml_jax.demo import run_combination
     from rhaml_jax.sequence import group_scenes
 
-    iml_model, iml_params = iml.load_iml(zoom_mirror=True)
+    iml_model, iml_params = iml.load_iml(a.amlnet, a.zoom, zoom_mirror=True)
     sets = {"ours": Path(a.ours)} | ({"heldout": Path(a.heldout)} if a.heldout else {})
     out = {"rows": []}
     for set_name, root in sets.items():

@@ -11,7 +11,7 @@ import numpy as np
 
 from rhaml_jax.frames import se3_from_xypsi, wrap_angle
 
-__all__ = ["DETECTION_THRESHOLD", "abs_errors", "ate", "detection_counts", "summarize"]
+__all__ = ["DETECTION_THRESHOLD", "abs_errors", "ate", "detection_counts", "frame_summary", "summarize"]
 
 DETECTION_THRESHOLD = 0.5  # o >= this: the robot is called in view (everywhere: evaluate, training metrics)
 
@@ -58,3 +58,24 @@ def summarize(est_xypsi, gt_xypsi) -> dict:
     e = np.asarray(abs_errors(est, gt), dtype=np.float64) * np.array([100.0, 100.0, 180.0 / np.pi])
     ms = lambda c: [float(e[:, c].mean()), float(e[:, c].std())]  # noqa: E731
     return {"dx_cm": ms(0), "dy_cm": ms(1), "dpsi_deg": ms(2), "ate": float(ate(est, gt)), "n": int(est.shape[0])}
+
+
+def frame_summary(frames: list[dict], detected_only: bool = True) -> dict:
+    """The robustness figures of evaluate's per-frame JSON rows (DESIGN.md section 5), over the
+    frames with the robot in view that have an estimate (and, with `detected_only`, were
+    detected): |dx|, |dy| (cm), |dpsi| (deg) as [mean, std, median], ATE, flips (|dpsi| > 90
+    deg), the median estimated / true range, n; and the detection counts over every frame."""
+    used = [f for f in frames if f["observed"] and f["est"] is not None and (f.get("detected", True) or not detected_only)]
+    called = np.array([bool(f.get("detected", f["est"] is not None)) for f in frames])
+    row = {"frames": len(frames), "detection": detection_counts(called.astype(float), [f["observed"] for f in frames]),
+           "n": len(used)}
+    if not used:
+        return row
+    est, gt = np.array([f["est"] for f in used], np.float64), np.array([f["gt"] for f in used], np.float64)
+    e = np.asarray(abs_errors(est, gt), np.float64) * np.array([100.0, 100.0, 180.0 / np.pi])
+    for k, name in enumerate(("dx_cm", "dy_cm", "dpsi_deg")):
+        row[name] = [float(e[:, k].mean()), float(e[:, k].std()), float(np.median(e[:, k]))]
+    row["ate"] = float(summarize(est, gt)["ate"])
+    row["flips"] = int((e[:, 2] > 90).sum())
+    row["median_range_ratio"] = float(np.median(np.hypot(est[:, 0], est[:, 1]) / np.hypot(gt[:, 0], gt[:, 1])))
+    return row

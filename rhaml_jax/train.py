@@ -14,6 +14,7 @@ never a model of the robot.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -43,6 +44,8 @@ class Args:
     """optimisation settings (flags --steps, --batch, --lr, ... without a prefix)"""
     resume: bool = False
     """continue the run in --out from its latest checkpoint"""
+    zoom_length_m: float | None = None
+    """zoom: the robot length the crop is sized to (default: the config's, the built-in robot's 0.455 m)"""
     init: Path | None = None
     """amlnet / zoom: start from the weights of this checkpoint folder (e.g. rhaml_jax/checkpoints/amlnet_cpu) instead of a random initialisation: fine-tuning"""
     toy_data: bool = False
@@ -53,12 +56,16 @@ class Args:
 
 def robot_of(args: Args) -> dict:
     """The fingerprint of the robot the training data show: the BOP set's model when --data has
-    one, else --robot."""
+    one (under --robot's name when that is the same robot: a BOP model is called obj_000001),
+    else --robot."""
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import fingerprint, load_robot
 
-    has_model = args.data is not None and bop_model_path(args.data).exists()
-    return fingerprint(load_bop_model(args.data) if has_model else load_robot(args.robot)).to_dict()
+    named = fingerprint(load_robot(args.robot))
+    if args.data is None or not bop_model_path(args.data).exists():
+        return named.to_dict()
+    shown = fingerprint(load_bop_model(args.data))
+    return (named if named.same_robot(shown) else shown).to_dict()
 
 
 def amlnet_sources(args: Args, cfg):
@@ -123,6 +130,10 @@ def main(argv: list[str] | None = None) -> dict:
     from rhaml_jax.amlnet.trainer import train_amlnet
 
     cfg = get_config(args.config)
+    if args.zoom_length_m is not None:
+        if getattr(cfg, "task", None) != "zoom" or not args.zoom_length_m > 0:
+            raise RhamlError(f"--zoom-length-m {args.zoom_length_m}: needs a zoom config and a positive length")
+        cfg = dataclasses.replace(cfg, zoom_length_m=float(args.zoom_length_m))
     tc = args.train
     if tc.steps < 1 or tc.batch < 1:
         raise RhamlError(f"--steps {tc.steps} / --batch {tc.batch}: must be positive")

@@ -1,0 +1,217 @@
+"""`fit`'s stages, in order, each resumable: a stage that finished is recorded in DIR/fit.json and
+skipped by `--resume`; one that was killed is run again (data are pure functions of (seed,
+index), trainings continue from their last checkpoint).
+
+DIR/
+  fit.json            robot fingerprint, plan, finished stages and their seconds
+  data/train          v2 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
+  runs/{amlnet,zoom,refiner}                           training runs (checkpoints, metrics.jsonl, metrics.png)
+  networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
+  eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
+  report.md, report_*.png                              the report
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Callable
+
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.fitting._plan import Plan
+
+STAGES = ("data", "amlnet", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
+MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
+
+
+def load_checked_robot(spec: str):
+    """The robot model, refused with one line when it has no visual geometry or a size no robot has
+    (a mesh in millimetres read as metres is 1000 times too large)."""
+    import warnings
+
+    from rhaml_jax.robots import load_robot
+
+    with warnings.catch_warnings():  # the too-large warning of load_robot becomes the error below
+        warnings.simplefilter("ignore", UserWarning)
+        model = load_robot(spec)
+    if len(model.faces) == 0 or float(model.face_areas.sum()) <= 0:
+        raise RhamlError(f"--robot {spec}: the model has no visual geometry (no faces with area)")
+    length = float(max(model.extents))
+    if not MIN_LENGTH_M <= length <= MAX_LENGTH_M:
+        hint = (" (a mesh in millimetres read as metres? scale it by 0.001, e.g. scale=\"0.001 0.001 0.001\" in the URDF)"
+                if length > MAX_LENGTH_M else " (a mesh scaled down too far?)")
+        raise RhamlError(f"--robot {spec}: the model is {length:.4g} m across, outside the {MIN_LENGTH_M}-{MAX_LENGTH_M} m "
+                         f"of a mobile robot{hint}")
+    return model
+
+
+@dataclasses.dataclass
+class FitState:
+    robot: dict
+    plan: dict
+    done: dict = dataclasses.field(default_factory=dict)
+    """stage -> wall seconds it took"""
+
+    def save(self, path: Path) -> None:
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(dataclasses.asdict(self), indent=1))
+        os.replace(tmp, path)  # atomic: a kill leaves the old state or the new one
+
+
+def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[FitState, Plan]:
+    """The run's state: new (refusing a folder that holds a run, unless `resume`), or the stored
+    one on `resume` (refusing another robot's folder; the stored plan wins)."""
+    from rhaml_jax.robots import RobotFingerprint, fingerprint
+
+    model = load_checked_robot(robot_spec)
+    fp = fingerprint(model)
+    path = out / "fit.json"
+    if path.exists():
+        if not resume:
+            raise RhamlError(f"{out}: holds a fit run already (fit.json): --resume continues it; or choose another --out")
+        stored = json.loads(path.read_text())
+        theirs = RobotFingerprint.from_dict(stored["robot"], str(path))
+        if not theirs.same_robot(fp):
+            raise RhamlError(f"--resume {out}: this run fits robot {theirs.describe()}, not --robot {robot_spec} "
+                             f"{fp.describe()}; nothing was changed")
+        return FitState(stored["robot"], stored["plan"], stored.get("done", {})), Plan.from_dict(stored["plan"], f"{path}: plan")
+    if resume:
+        raise RhamlError(f"--resume {out}: no fit run there (fit.json not found)")
+    out.mkdir(parents=True, exist_ok=True)
+    state = FitState(fp.to_dict(), dataclasses.asdict(plan))
+    state.save(path)
+    return state, plan
+
+
+def _camera(width: int, height: int):
+    from rhaml_jax.camera import DEFAULT_CAMERA
+
+    return DEFAULT_CAMERA if (width, height) == (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height) else DEFAULT_CAMERA.resized(width, height)
+
+
+def _train(argv: list[str], run: Path) -> None:
+    from rhaml_jax.train import main as train_main
+
+    train_main(argv + ["--out", str(run)] + (["--resume"] if (run / "checkpoints").is_dir() else []))
+
+
+def _mirror_flag(model) -> list[str]:
+    from rhaml_jax.iml import check_mirror_symmetric
+
+    try:
+        check_mirror_symmetric(model, model.name)
+    except RhamlError:
+        return []
+    return ["--zoom-mirror"]
+
+
+def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: int) -> dict[str, Callable[[], None]]:
+    """stage name -> a function that runs it (resumably)."""
+    from rhaml_jax.data import SynthConfig, AppearanceConfig, write_heldout, write_scenario, write_training_set
+
+    data, runs, nets, ev = out / "data", out / "runs", out / "networks", out / "eval"
+    model = load_checked_robot(robot_spec)
+    length = float(model.extents[0])
+
+    def data_stage():
+        write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
+                           workers, cfg=SynthConfig(appearance=AppearanceConfig()))
+        write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
+                           plan.refine_images, 0, workers,
+                           cfg=SynthConfig(appearance=AppearanceConfig()))
+
+    def amlnet_stage():
+        _train(["--stage", "amlnet", "--robot", robot_spec, "--config", plan.amlnet_config, "--data", str(data / "train"),
+                "--steps", str(plan.amlnet_steps), "--batch", str(plan.amlnet_batch), "--seed", str(seed),
+                "--val-every", str(max(1, plan.amlnet_steps // 8)), "--ckpt-every", str(max(1, min(250, plan.amlnet_steps // 4))),
+                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "2" if plan.size == "tiny" else "8"],
+               runs / "amlnet")
+
+    def zoom_stage():
+        _train(["--stage", "zoom", "--robot", robot_spec, "--config", plan.zoom_config, "--data", str(data / "train"),
+                "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526",
+                "--steps", str(plan.zoom_steps), "--batch", str(plan.zoom_batch), "--seed", str(seed),
+                "--val-every", str(max(1, plan.zoom_steps // 8)), "--ckpt-every", str(max(1, min(500, plan.zoom_steps // 4))),
+                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "2" if plan.size == "tiny" else "8"],
+               runs / "zoom")
+
+    def refiner_stage():
+        _train(["--stage", "refiner", "--robot", robot_spec, "--config", plan.refiner_config, "--data", str(data / "refine"),
+                "--steps", str(plan.refiner_steps), "--batch", str(plan.refiner_batch), "--seed", str(seed),
+                "--val-every", str(max(1, plan.refiner_steps // 4)), "--ckpt-every", str(max(1, min(250, plan.refiner_steps // 4))),
+                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "1" if plan.size == "tiny" else "4"],
+               runs / "refiner")
+
+    def export_stage():
+        from rhaml_jax.amlnet import export_weights
+        from rhaml_jax.refine import export_refiner
+
+        export_weights(runs / "amlnet", nets / "amlnet")
+        export_weights(runs / "zoom", nets / "zoom")
+        export_refiner(runs / "refiner", nets / "refiner")
+
+    def scenarios_stage():
+        cam = _camera(plan.eval_width, plan.eval_height)
+        for name in ("circle", "sine"):
+            write_scenario(ev / name, name, robot_spec, cam, seed, plan.frames, workers)
+        write_heldout(ev / "heldout", robot_spec, cam, seed, plan.frames, plan.frames, max(4, plan.frames // 5), workers)
+
+    def evaluate_stage():
+        from rhaml_jax.evaluate import main as evaluate_main
+
+        (ev / "results").mkdir(parents=True, exist_ok=True)
+        nets_args = ["--amlnet", str(nets / "amlnet"), "--zoom", str(nets / "zoom"), "--refiner", str(nets / "refiner"),
+                     *_mirror_flag(model)]
+        for name in plan.eval_sets:
+            folder = eval_folder(ev, name)
+            for modules in eval_modules(name):
+                target = ev / "results" / f"{name.replace('/', '_')}_{modules.replace(',', '+')}.json"
+                if not target.exists():
+                    evaluate_main(["--data", str(folder), "--modules", modules, "--json", str(target), *nets_args])
+
+    def report_stage():
+        from rhaml_jax.fitting._report import write_report
+
+        write_report(out, model, plan)
+
+    return {"data": data_stage, "amlnet": amlnet_stage, "zoom": zoom_stage, "refiner": refiner_stage,
+            "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
+
+
+def eval_folder(ev: Path, name: str) -> Path:
+    """The BOP folder of an evaluation set: our scenario (circle, sine) or a held-out part (heldout/PART)."""
+    return ev.joinpath(*name.split("/"))
+
+
+def eval_modules(name: str) -> tuple[str, ...]:
+    """The module combinations run on an evaluation set (pgo needs a scenario's odometry)."""
+    scenario = name.split("/")[-1] in ("circle", "sine")
+    return ("iml", "iml,ir", "iml,ir,pgo") if scenario else ("iml", "iml,ir")
+
+
+def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, workers: int = 2, seed: int = 0,
+            stop_after: str | None = None, log: Callable[[str], None] = print) -> FitState:
+    """Runs (or, with `resume`, continues) every stage; `stop_after` ends the run after that stage
+    as a kill would (for tests)."""
+    out = Path(out)
+    state, plan = open_state(out, robot_spec, plan, resume)
+    funcs = stage_functions(out, robot_spec, plan, workers, seed)
+    t0, budget = time.perf_counter(), plan.budget_minutes * 60.0
+    spent = sum(state.done.values())
+    for k, name in enumerate(STAGES, 1):
+        if name in state.done:
+            log(f"[fit {k}/{len(STAGES)}] {name}: done ({state.done[name]:.0f} s), skipped")
+            continue
+        used = spent + time.perf_counter() - t0
+        log(f"[fit {k}/{len(STAGES)}] {name}: {used / 60:.1f} min used, {max(0.0, budget - used) / 60:.1f} min left of "
+            f"the {plan.budget_minutes:g} min budget")
+        ts = time.perf_counter()
+        funcs[name]()
+        state.done[name] = round(time.perf_counter() - ts, 1)
+        state.save(out / "fit.json")
+        if name == stop_after:
+            break
+    return state

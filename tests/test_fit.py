@@ -1,0 +1,117 @@
+"""`python -m rhaml_jax.fit` at tiny size: end to end on the TurtleBot3 URDF, killed after a stage
+and resumed, and its refusals (another robot's folder, no visual geometry, a robot in the wrong
+units, a budget too small), each one line with exit status 2 and nothing trained lost."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.fitting import STAGES, load_checked_robot, make_plan, run_fit
+from tests.conftest import shared_path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _turtlebot() -> str:
+    return str(shared_path("robots", "turtlebot3_burger", "urdf", "turtlebot3_burger.main.urdf"))
+
+
+@pytest.fixture(scope="module")
+def killed_and_resumed(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit") / "tb"
+    robot, plan = _turtlebot(), make_plan(5, "tiny")
+    first = run_fit(robot, out, plan, workers=1, stop_after="amlnet", log=lambda s: None)
+    assert list(first.done) == ["data", "amlnet"]
+    amlnet_ckpt = sorted((out / "runs" / "amlnet" / "checkpoints").iterdir())
+    logs = []
+    state = run_fit(robot, out, plan, resume=True, workers=1, log=logs.append)
+    return out, state, amlnet_ckpt, logs
+
+
+def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
+    out, state, amlnet_ckpt, logs = killed_and_resumed
+    assert list(state.done) == list(STAGES)
+    assert any("amlnet: done" in line and "skipped" in line for line in logs)  # not trained again
+    assert sorted((out / "runs" / "amlnet" / "checkpoints").iterdir()) == amlnet_ckpt
+    for net in ("amlnet", "zoom", "refiner"):
+        assert (out / "networks" / net / "checkpoints").is_dir()
+    report = (out / "report.md").read_text()
+    assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
+    assert (out / "report_trajectories.png").stat().st_size > 1000
+
+
+def test_networks_carry_the_robot_and_its_crop_size(killed_and_resumed):
+    from rhaml_jax.amlnet import load_model
+    from rhaml_jax.amlnet.checkpoint import checkpoint_robot
+    from rhaml_jax.robots import fingerprint
+
+    out = killed_and_resumed[0]
+    tb = fingerprint(load_checked_robot(_turtlebot())).to_dict()
+    for net in ("amlnet", "zoom"):
+        assert checkpoint_robot(out / "networks" / net) == tb
+    zoom, _, _ = load_model(out / "networks" / "zoom")
+    np.testing.assert_allclose(zoom.cfg.zoom_length_m, tb["extents_m"][0], atol=1e-4)
+
+
+def test_networks_are_refused_on_another_robots_data(killed_and_resumed, tmp_path):
+    """The TurtleBot's networks on a Pioneer data set: evaluate names both robots."""
+    from rhaml_jax.camera import DEFAULT_CAMERA
+    from rhaml_jax.data import write_scenario
+    from rhaml_jax.evaluate import main as evaluate_main
+
+    out = killed_and_resumed[0]
+    write_scenario(tmp_path / "circle", "circle", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=0, frames=4, workers=1)
+    with pytest.raises(RhamlError, match=r"was made for robot 'turtlebot3_burger.main' .* is robot 'obj_000001' \(45.5"):
+        evaluate_main(["--data", str(tmp_path / "circle"), "--amlnet", str(out / "networks" / "amlnet"),
+                       "--zoom", str(out / "networks" / "zoom")])
+
+
+def test_resume_on_another_robots_folder_changes_nothing(killed_and_resumed):
+    out = killed_and_resumed[0]
+    before = (out / "fit.json").read_text()
+    with pytest.raises(RhamlError, match=r"this run fits robot 'turtlebot3_burger.main' .*not --robot pioneer3dx"):
+        run_fit("pioneer3dx", out, make_plan(5, "tiny"), resume=True)
+    with pytest.raises(RhamlError, match=r"holds a fit run already"):
+        run_fit(_turtlebot(), out, make_plan(5, "tiny"))
+    assert (out / "fit.json").read_text() == before
+
+
+def _cli(tmp_path, *args):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "rhaml_jax.fit", *args], cwd=ROOT, capture_output=True, text=True, env=env)
+
+
+def test_bad_input_one_line_exit_2(tmp_path):
+    no_visual = tmp_path / "no_visual.urdf"
+    no_visual.write_text('<robot name="ghost"><link name="base_link"><collision><geometry><box size="0.3 0.2 0.1"/>'
+                         "</geometry></collision></link></robot>")
+    huge = tmp_path / "huge.obj"  # a 455 mm robot written in millimetres, read as metres
+    v = np.array([[0, 0, 0], [455, 0, 0], [0, 380, 0], [0, 0, 240]], float)
+    huge.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v) + "f 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    for args, msg in (((str(no_visual),), "visual"),
+                      ((str(huge),), "455 m across"),
+                      (("pioneer3dx", "--size", "cpu", "--budget-minutes", "2"), "too small to train anything"),
+                      (("pioneer3dx", "--resume"), "no fit run there")):
+        r = _cli(tmp_path, "--robot", args[0], "--out", str(tmp_path / "out"), *args[1:])
+        assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "out" / "fit.json").exists()
+
+
+def test_budget_rule():
+    p = make_plan(180)
+    assert (p.amlnet_steps, p.images, p.frames) == (2700, 20000 * 7 // 8, 500)
+    assert make_plan(45).amlnet_steps == 675
+    big = make_plan(100_000)
+    assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
+    with pytest.raises(RhamlError, match="give at least"):
+        make_plan(3)
+    assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)
