@@ -14,10 +14,10 @@ if [ ! -f "$DATA/v2_train/.complete" ]; then
   touch "$DATA/v2_train/.complete"
 fi
 "$PY" -m rhaml_jax.train --stage amlnet --config cpu --data "$DATA/v2_train" --out "$RUNS/amlnet_v2" \
-  --init "$INIT_AMLNET" --steps 1200 --lr 5e-4 --warmup 100 --val-every 250 --ckpt-every 250 --no-progress \
+  --init "$INIT_AMLNET" --steps 4000 --lr 5e-4 --warmup 100 --val-every 500 --ckpt-every 250 --no-progress \
   $( [ -d "$RUNS/amlnet_v2/checkpoints" ] && echo --resume )
 "$PY" -m rhaml_jax.train --stage zoom --config zoom_cpu --data "$DATA/v2_train" --out "$RUNS/zoom_v2" \
-  --init "$INIT_ZOOM" --steps 2000 --lr 5e-4 --warmup 100 --val-every 500 --ckpt-every 500 --w-xy 69.4 526 --no-progress \
+  --init "$INIT_ZOOM" --steps 3000 --lr 5e-4 --warmup 100 --val-every 500 --ckpt-every 500 --w-xy 69.4 526 --no-progress \
   $( [ -d "$RUNS/zoom_v2/checkpoints" ] && echo --resume )
 "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/amlnet_v2', '$RUNS/export/amlnet_cpu'); e('$RUNS/zoom_v2', '$RUNS/export/zoom_cpu')"
 echo "exported to $RUNS/export/{amlnet_cpu,zoom_cpu}"

@@ -108,8 +108,9 @@ def test_bad_input_one_line_exit_2(tmp_path):
 
 def test_budget_rule():
     p = make_plan(180)
-    assert (p.amlnet_steps, p.images, p.frames) == (2700, 20000 * 7 // 8, 500)
-    assert make_plan(45).amlnet_steps == 675
+    assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
+    q = make_plan(45)  # 2700 s: AMLNet 45 % at 0.6 s per step, data 15 % at 25 images/s
+    assert (q.amlnet_steps, q.images + q.negatives) == (2025, 10125)
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     with pytest.raises(RhamlError, match="give at least"):

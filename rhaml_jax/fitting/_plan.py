@@ -6,8 +6,8 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v2 training images at 320 x 256 | 15 % | 20 images/s (2 processes) | images (7/8 with the robot) |
-| amlnet: `cpu`, batch 32 | 45 % | 1.8 s per step | steps |
+| data: v2 training images at 320 x 256 | 15 % | 25 images/s (2 processes) | images (7/8 with the robot) |
+| amlnet: `cpu`, batch 32 | 45 % | 0.6 s per step | steps |
 | zoom: `zoom_cpu`, batch 32 | 12 % | 0.25 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.6 s per step | steps |
 | evaluation: scenarios, held-out set, evaluate | 18 % | 2 frames/s (render + IML + IR) | frames per scenario |
@@ -27,7 +27,7 @@ from typing import Literal
 from rhaml_jax.errors import RhamlError
 
 SHARES = {"data": 0.15, "amlnet": 0.45, "zoom": 0.12, "refiner": 0.10, "evaluation": 0.18}
-RATES = {"images_per_s": 20.0, "amlnet_step_s": 1.8, "zoom_step_s": 0.25, "refiner_step_s": 0.6, "eval_frames_per_s": 2.0}
+RATES = {"images_per_s": 25.0, "amlnet_step_s": 0.6, "zoom_step_s": 0.25, "refiner_step_s": 0.6, "eval_frames_per_s": 2.0}
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}

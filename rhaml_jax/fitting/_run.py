@@ -117,33 +117,24 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
     length = float(model.extents[0])
 
     def data_stage():
+        v2 = SynthConfig(appearance=AppearanceConfig())
         write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
-                           workers, cfg=SynthConfig(appearance=AppearanceConfig()))
+                           workers, cfg=v2)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
-                           plan.refine_images, 0, workers,
-                           cfg=SynthConfig(appearance=AppearanceConfig()))
+                           plan.refine_images, 0, workers, cfg=v2)
 
-    def amlnet_stage():
-        _train(["--stage", "amlnet", "--robot", robot_spec, "--config", plan.amlnet_config, "--data", str(data / "train"),
-                "--steps", str(plan.amlnet_steps), "--batch", str(plan.amlnet_batch), "--seed", str(seed),
-                "--val-every", str(max(1, plan.amlnet_steps // 8)), "--ckpt-every", str(max(1, min(250, plan.amlnet_steps // 4))),
-                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "2" if plan.size == "tiny" else "8"],
-               runs / "amlnet")
+    def train(stage: str, config: str, folder: str, steps: int, batch: int, val_times: int, val_batches: int, *extra):
+        """One `train` run in runs/STAGE, resumed if it has checkpoints."""
+        tiny = plan.size == "tiny"
+        _train(["--stage", stage, "--robot", robot_spec, "--config", config, "--data", str(data / folder), *extra,
+                "--steps", str(steps), "--batch", str(batch), "--seed", str(seed),
+                "--val-every", str(max(1, steps // val_times)), "--ckpt-every", str(max(1, min(250, steps // 4))),
+                "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / stage)
 
-    def zoom_stage():
-        _train(["--stage", "zoom", "--robot", robot_spec, "--config", plan.zoom_config, "--data", str(data / "train"),
-                "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526",
-                "--steps", str(plan.zoom_steps), "--batch", str(plan.zoom_batch), "--seed", str(seed),
-                "--val-every", str(max(1, plan.zoom_steps // 8)), "--ckpt-every", str(max(1, min(500, plan.zoom_steps // 4))),
-                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "2" if plan.size == "tiny" else "8"],
-               runs / "zoom")
-
-    def refiner_stage():
-        _train(["--stage", "refiner", "--robot", robot_spec, "--config", plan.refiner_config, "--data", str(data / "refine"),
-                "--steps", str(plan.refiner_steps), "--batch", str(plan.refiner_batch), "--seed", str(seed),
-                "--val-every", str(max(1, plan.refiner_steps // 4)), "--ckpt-every", str(max(1, min(250, plan.refiner_steps // 4))),
-                "--no-progress" if plan.size == "tiny" else "--progress", "--val-batches", "1" if plan.size == "tiny" else "4"],
-               runs / "refiner")
+    amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8)  # noqa: E731
+    zoom_stage = lambda: train("zoom", plan.zoom_config, "train", plan.zoom_steps, plan.zoom_batch, 8, 8,  # noqa: E731
+                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526")
+    refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
 
     def export_stage():
         from rhaml_jax.amlnet import export_weights
