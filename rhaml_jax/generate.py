@@ -3,6 +3,7 @@
   python -m rhaml_jax.generate --out DIR --num 70000 --negatives 10000 [--robot R] [--seed S]
   python -m rhaml_jax.generate --out DIR --scenario circle|sine|rendezvous [--frames 500]
   python -m rhaml_jax.generate --out DIR --heldout [--frames 500 --num 500 --negatives 100]
+  python -m rhaml_jax.generate --out DIR --heldout --scenario rendezvous [--frames 200]
 
 Training sets use the v2 appearance randomisation (`--appearance v2`, ranges in
 `rhaml_jax.data.AppearanceConfig`, each settable as `--ranges.FIELD LO HI`); `--appearance v1`
@@ -72,8 +73,9 @@ def generate(args: Args) -> dict:
     negatives = args.negatives if args.negatives is not None else 100 if args.heldout else 10000
     if num < 0 or negatives < 0 or (num + negatives == 0 and not args.heldout):
         raise RhamlError(f"--num and --negatives must be >= 0 and not both 0, got {num}, {negatives}")
-    if args.heldout and args.scenario is not None:
-        raise RhamlError("--heldout writes its own circle and sine scenarios: drop --scenario")
+    if args.heldout and args.scenario in ("circle", "sine"):
+        raise RhamlError("--heldout writes its own circle and sine scenarios: drop --scenario "
+                         "(--heldout --scenario rendezvous writes a held-out two-robot sequence)")
     if args.heldout and args.appearance != "v2":
         raise RhamlError("--heldout: its settings are checked against the v2 training ranges; drop --appearance v1")
     args.ranges.validate(), args.heldout_ranges.validate()  # (parsed with the checks deferred)
@@ -89,7 +91,10 @@ def generate(args: Args) -> dict:
     camera = DEFAULT_CAMERA if (args.width, args.height) == (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height) else DEFAULT_CAMERA.resized(args.width, args.height)
     assert isinstance(camera, Camera)
     t = time.perf_counter()
-    if args.heldout:
+    if args.heldout and args.scenario == "rendezvous":
+        out = write_scenario(args.out, "rendezvous", args.robot, camera, args.seed, args.frames, args.workers,
+                             max_faces=args.max_faces, heldout=args.heldout_ranges)
+    elif args.heldout:
         out = write_heldout(args.out, args.robot, camera, args.seed, args.frames, num, negatives, args.workers, args.max_faces,
                             args.heldout_ranges, args.ranges)
     elif args.scenario is not None:

@@ -204,3 +204,20 @@ def test_robot_like_distractors_have_their_documented_sizes():
                 assert CFG.cart_length_m[0] - 1e-6 <= d <= np.hypot(1.3, 1.2) * CFG.cart_length_m[1] + 1e-6
         assert len(used)
     assert seen > 100
+
+
+def test_heldout_rendezvous_is_two_scenes_in_the_heldout_look(tmp_path):
+    """`generate --heldout --scenario rendezvous`: the two-robot sequence (one scene per camera)
+    under the held-out settings; circle and sine stay part of the whole benchmark."""
+    from rhaml_jax.generate import Args, generate
+
+    generate(Args(out=tmp_path / "r", heldout=True, scenario="rendezvous", frames=4, width=160, height=120, workers=1))
+    frames = data.read_bop(tmp_path / "r", None)
+    assert sorted({f.scene_id for f in frames}) == [0, 1] and len(frames) == 8
+    plain = tmp_path / "p"
+    generate(Args(out=plain, scenario="rendezvous", frames=4, width=160, height=120, workers=1))
+    a = data.load_rgb(frames[0].rgb)
+    b = data.load_rgb(data.read_bop(plain, None)[0].rgb)
+    assert a.shape == b.shape and np.abs(a.astype(int) - b.astype(int)).mean() > 5  # another look
+    with pytest.raises(RhamlError, match="drop --scenario"):
+        generate(Args(out=tmp_path / "c", heldout=True, scenario="circle"))
