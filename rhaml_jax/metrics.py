@@ -43,9 +43,10 @@ def ate(T_est: jaxlie.SE3 | jnp.ndarray, T_gt: jaxlie.SE3 | jnp.ndarray) -> jnp.
     twist = (T_gt.inverse() @ T_est).log()
     ms = jnp.mean(jnp.sum(twist**2, axis=-1))
     # Guard: d sqrt(x)/dx is infinite at x = 0 (a perfect estimate); the double `where` keeps
-    # the gradient finite (zero) there without changing the value.
-    positive = ms > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, ms, 1.0)), 0.0)
+    # the gradient finite (zero) there without changing the value. A non-finite estimate stays
+    # NaN (testing `ms > 0` instead would report it as a perfect 0).
+    zero = ms == 0
+    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, ms)))
 
 
 def summarize(est_xypsi, gt_xypsi) -> dict:

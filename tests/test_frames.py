@@ -168,3 +168,9 @@ def test_gradients_finite_at_zero_and_wrap():
     assert np.all(np.isfinite(g))
     g = jax.grad(lambda p: frames.roll_pitch_yaw(frames.se3_from_xypsi(p)).sum())(jnp.zeros(3))
     assert np.all(np.isfinite(g))
+
+
+def test_ate_of_a_non_finite_estimate_is_nan_not_zero():
+    gt = jnp.array([[2.0, 0.5, 0.0], [3.0, -1.0, 0.5]])
+    assert np.isnan(float(metrics.ate(gt.at[1, 0].set(jnp.nan), gt)))
+    assert float(metrics.ate(gt, gt)) == 0.0

@@ -218,3 +218,24 @@ def test_no_usable_rendezvous_stays_finite():
     r = fuse_jit(rv, CFG, jnp.zeros(K, bool))
     assert np.all(np.isfinite(np.asarray(r.relative))) and np.all(np.isfinite(np.asarray(r.a0_T_b0)))
     assert not np.any(np.asarray(r.inlier)) and np.all(np.asarray(r.weights) == 0)
+
+
+def test_a_long_chain_held_by_two_inliers_stays_finite_under_jit():
+    """Regression: the held-out rendezvous (400 rows, 48 detections of which 2 consistent) made
+    the jitted fuse answer NaN (the final step's block elimination in float32) while the eager
+    call was finite. tests/data holds that sequence's IML estimates and odometry."""
+    from pathlib import Path
+
+    z = np.load(Path(__file__).parent / "data" / "fusion_two_inliers_in_400_rows.npz")
+    with jax.enable_x64(False):
+        obs = observation_from_xy_yaw_rp(jnp.asarray(z["xypsi"]), jnp.asarray(z["rp"]))
+        from rhaml_jax.pgo import rendezvous_from_frames
+
+        rv = rendezvous_from_frames(jnp.asarray(z["odom_a"]), jnp.asarray(z["odom_b"]), obs, jnp.asarray(z["a_obs"]))
+        det, flip = jnp.asarray(z["det"]), jnp.asarray(z["flip"])
+        eager = fuse(rv, CFG, valid=det, flip_prob=flip)
+        jitted = jax.jit(lambda r, d, f: fuse(r, CFG, valid=d, flip_prob=f))(rv, det, flip)
+    assert int((jitted.inlier & det).sum()) == 2
+    for r in (eager, jitted):
+        assert np.all(np.isfinite(np.asarray(r.relative))) and np.all(np.isfinite(np.asarray(r.odom_a_T_odom_b)))
+    np.testing.assert_allclose(np.asarray(jitted.odom_a_T_odom_b), np.asarray(eager.odom_a_T_odom_b), atol=1e-3)

@@ -404,9 +404,12 @@ def _final_step(T, g: FusionGraph, w, cfg: FusionConfig):
     D, Lo, gv, _ = ladder_normal_equations(T, q, g.a_observes, dataclasses.replace(cfg.solver, robust="none"))
     gauge = jnp.zeros((K + 1, 6), bool).at[0, :3].set(True)
     # guard: with no mutual edge B's placement is free (H singular): a unit ridge then keeps
-    # the (masked) step and its derivative finite; otherwise a tiny one
+    # the (masked) step and its derivative finite; otherwise one at the dtype's resolution of
+    # the largest block: the unpivoted block elimination of a long chain held by a few mutual
+    # edges lost all precision in float32 without it (NaN under one XLA compilation, finite
+    # under another: the held-out rendezvous, 2 inliers in 400 rows)
     has = jnp.any(g.usable)
-    ridge = jnp.where(has, 1e-12 * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny, 1.0)
+    ridge = jnp.where(has, 8 * jnp.finfo(D.dtype).eps * jnp.max(jnp.abs(D)) + jnp.finfo(D.dtype).tiny, 1.0)
     D = D + ridge * jnp.eye(6, dtype=D.dtype)
     x = band_solve(D, Lo, -gv[..., None], cfg.solver.band_solver)[..., 0]
     x = jnp.where(gauge | ~has, 0.0, x)
