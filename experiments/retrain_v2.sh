@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Issue 18: the shipped amlnet_cpu + zoom_cpu fine-tuned on v2 (appearance-randomised) data mixed
+# Issue 18 (an experiment, not the shipped networks: BENCHMARKS.md, "Retraining on v2 data"): the
+# shipped amlnet_cpu + zoom_cpu fine-tuned on v2 (appearance-randomised) data mixed
 # with v1 data (the v2-only fine-tune stalled: BENCHMARKS.md, "Retraining on v2 data"). Every
 # stage resumes (generation is a pure function of (seed, index): rerunning rewrites the same bytes).
 #   bash experiments/retrain_v2.sh DATA_ROOT RUNS_ROOT
