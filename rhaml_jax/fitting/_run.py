@@ -140,9 +140,11 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         from rhaml_jax.amlnet import export_weights
         from rhaml_jax.refine import export_refiner
 
-        export_weights(runs / "amlnet", nets / "amlnet")
-        export_weights(runs / "zoom", nets / "zoom")
-        export_refiner(runs / "refiner", nets / "refiner")
+        import shutil
+
+        for name, export in (("amlnet", export_weights), ("zoom", export_weights), ("refiner", export_refiner)):
+            shutil.rmtree(nets / name, ignore_errors=True)  # derived from runs/: a killed export is redone whole
+            export(runs / name, nets / name)
 
     def scenarios_stage():
         cam = _camera(plan.eval_width, plan.eval_height)
