@@ -15,41 +15,47 @@ def _fmt(v) -> str:
     return "" if v is None else f"{v[0]:.1f} / {v[1]:.1f} / {v[2]:.1f}"
 
 
-def evaluation_rows(out: Path, plan: Plan) -> list[tuple[str, str, dict]]:
-    """(evaluation set, modules, `metrics.frame_summary` + evaluate's FPS) for every result."""
+def _results(out: Path, plan: Plan) -> dict[tuple[str, str], dict]:
+    """(evaluation set, modules) -> evaluate's JSON, for every result written."""
     from rhaml_jax.fitting._run import eval_modules
-    from rhaml_jax.metrics import frame_summary
 
-    rows = []
+    found = {}
     for name in plan.eval_sets:
         for modules in eval_modules(name):
             path = out / "eval" / "results" / f"{name.replace('/', '_')}_{modules.replace(',', '+')}.json"
             if path.exists():
-                res = json.loads(path.read_text())
-                rows.append((name, modules, frame_summary(res["frames"]) | {"fps": res["metrics"].get("fps")}))
-    return rows
+                found[name, modules] = json.loads(path.read_text())
+    return found
 
 
-def _plots(out: Path, rows) -> list[str]:
+def evaluation_rows(results: dict) -> list[tuple[str, str, dict]]:
+    """(evaluation set, modules, `metrics.frame_summary` + evaluate's FPS) for every result."""
+    from rhaml_jax.metrics import frame_summary
+
+    return [(name, modules, frame_summary(res["frames"]) | {"fps": res["metrics"].get("fps")})
+            for (name, modules), res in results.items()]
+
+
+def _seen(res: dict) -> list[dict]:
+    return [f for f in res["frames"] if f["observed"] and f["est"] is not None]
+
+
+def _plots(out: Path, results: dict) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    written = []
-    results = out / "eval" / "results"
+    from rhaml_jax.metrics import abs_errors
+
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, name in zip(axes, ("circle", "sine")):
         for modules, style in (("iml", "."), ("iml,ir,pgo", "-")):
-            path = results / f"{name}_{modules.replace(',', '+')}.json"
-            if not path.exists():
-                continue
-            fr = [f for f in json.loads(path.read_text())["frames"] if f["observed"] and f["est"] is not None]
-            est = np.array([f["est"] for f in fr])
-            ax.plot(est[:, 0], est[:, 1], style, ms=2, lw=1, label=modules.upper().replace(",", "+"))
-        gt_path = results / f"{name}_iml.json"
-        if gt_path.exists():
-            gt = np.array([f["gt"] for f in json.loads(gt_path.read_text())["frames"] if f["observed"]])
+            if (name, modules) in results:
+                est = np.array([f["est"] for f in _seen(results[name, modules])])
+                ax.plot(est[:, 0], est[:, 1], style, ms=2, lw=1, label=modules.upper().replace(",", "+"))
+        if (name, "iml") in results:
+            gt = np.array([f["gt"] for f in results[name, "iml"]["frames"] if f["observed"]])
             ax.plot(gt[:, 0], gt[:, 1], "k--", lw=1, label="ground truth")
         ax.set_title(f"{name} (observer's frame)"), ax.set_xlabel("x (m)"), ax.set_ylabel("y (m)"), ax.axis("equal")
         if ax.get_legend_handles_labels()[0]:
@@ -57,20 +63,14 @@ def _plots(out: Path, rows) -> list[str]:
     fig.tight_layout()
     fig.savefig(out / "report_trajectories.png", dpi=80)
     plt.close(fig)
-    written.append("report_trajectories.png")
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for name in ("circle", "sine", "heldout/circle", "heldout/sine"):
-        path = results / f"{name.replace('/', '_')}_iml+ir.json"
-        if not path.exists():
-            continue
-        fr = [f for f in json.loads(path.read_text())["frames"] if f["observed"] and f["est"] is not None]
-        if not fr:
-            continue
-        d = np.array([f["est"] for f in fr]) - np.array([f["gt"] for f in fr])
-        errs = (np.abs(d[:, 0]) * 100, np.abs(d[:, 1]) * 100, np.degrees(np.abs(np.arctan2(np.sin(d[:, 2]), np.cos(d[:, 2])))))
-        for ax, e in zip(axes, errs):
-            ax.hist(e, bins=30, histtype="step", label=name)
+        fr = _seen(results[name, "iml,ir"]) if (name, "iml,ir") in results else []
+        if fr:
+            e = np.asarray(abs_errors(np.array([f["est"] for f in fr]), np.array([f["gt"] for f in fr])))
+            for ax, col in zip(axes, (100 * e[:, 0], 100 * e[:, 1], np.degrees(e[:, 2]))):
+                ax.hist(col, bins=30, histtype="step", label=name)
     for ax, lab in zip(axes, ("abs dx (cm)", "abs dy (cm)", "abs dpsi (deg)")):
         ax.set_xlabel(lab), ax.set_yscale("log")
         if ax.get_legend_handles_labels()[0]:
@@ -79,15 +79,15 @@ def _plots(out: Path, rows) -> list[str]:
     fig.tight_layout()
     fig.savefig(out / "report_errors.png", dpi=80)
     plt.close(fig)
-    written.append("report_errors.png")
-    return written
+    return ["report_trajectories.png", "report_errors.png"]
 
 
 def write_report(out: Path, model, plan: Plan) -> Path:
     """Writes DIR/report.md (and its plots); returns its path."""
     out = Path(out)
     state = json.loads((out / "fit.json").read_text())
-    rows = evaluation_rows(out, plan)
+    results = _results(out, plan)
+    rows = evaluation_rows(results)
     from rhaml_jax.robots import RobotFingerprint
 
     fp = RobotFingerprint.from_dict(state["robot"])
@@ -118,7 +118,7 @@ def write_report(out: Path, model, plan: Plan) -> Path:
             continue
         lines.append(f"| {name} | {modules} | {_fmt(r['dx_cm'])} | {_fmt(r['dy_cm'])} | {_fmt(r['dpsi_deg'])} | {r['ate']:.3f} "
                      f"| {r['flips']} / {r['n']} | {r['median_range_ratio']:.3f} | {det} | {fps} |")
-    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in _plots(out, rows)]
+    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in _plots(out, results)]
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n")
     (out / "report.json").write_text(json.dumps({"state": state, "rows": rows}, indent=1))
