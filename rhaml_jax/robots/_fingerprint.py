@@ -8,7 +8,7 @@ networks must cope with its new paint.
 
 Two fingerprints are the same robot when their extents agree within 2 % (and 3 mm) on every axis
 and their surface areas within 5 %: loose enough for the same CAD model written to a BOP ply in
-millimetres and read back, or simplified for rendering, tight enough to tell a Pioneer (0.46 m
+millimetres and read back (tested), tight enough to tell a Pioneer (0.46 m
 long) from a TurtleBot3 (0.14 m) or a robot scaled by a tenth. `geometry_hash` (the model's
 vertices quantised to 1 mm) is reported so that two users can tell whether they hold the very
 same mesh; it is not what decides.
