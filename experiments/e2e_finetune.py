@@ -1,0 +1,257 @@
+"""End-to-end differentiable ablation: the zoom-in stage fine-tuned with the gradient of the
+pose graph's fused error, through refinement (IR) and the pose graph (PGO), against the same
+stage fine-tuned alone (its own per-crop loss, `train --stage zoom --init`) on the same images
+for the same extra wall time; then the shipped, the alone and the end-to-end stage each run
+IML+IR+PGO on circle + sine (ours and held-out), reporting every stage's error.
+
+  python experiments/e2e_finetune.py --train /work/data/e2e_rv11 /work/data/e2e_rv12 \
+      --val /work/data/e2e_rv13 --ours /work/data/ours --heldout /work/data/heldout \
+      --runs /work/runs/e2e --out experiments/results/e2e.json [--steps 150 --window 32]
+
+Training sequences: two-robot rendezvous scenarios (`generate --scenario rendezvous --seed S`,
+seeds other than the evaluation's), interleaved in time; each step takes a run of `--window`
+consecutive frames with the robot in view, a pure function of (seed, step), so a resumed run is exact.
+The loss is the fused pose error over the window's detected frames with the robot in view:
+Huber(dx, dy; 5 cm) / 5 cm + (1 - cos dpsi). Only the zoom stage's weights move (AMLNet, the
+refiner and the BatchNorm statistics stay as shipped); gradient and AdamW update are two jitted
+functions (DESIGN.md section 8). Checkpoints every `--ckpt-every` steps (Orbax, atomic) in the
+zoom checkpoint layout, so `evaluate --zoom RUN` reads the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _paper  # noqa: E402
+
+HUBER_M = 0.05
+
+
+def load_sequences(roots: list[Path], n: int):
+    """Each rendezvous root (two scenes, one per robot's camera) as one interleaved SceneData."""
+    from rhaml_jax.data import read_bop
+    from rhaml_jax.sequence import group_scenes, interleave, load_scene
+
+    out = []
+    for root in roots:
+        scenes = list(group_scenes(read_bop(root)).values())
+        if len(scenes) != 2:
+            raise SystemExit(f"{root}: a rendezvous scenario has two scenes (one per camera), found {len(scenes)}")
+        out.append(interleave(load_scene(scenes[0]), load_scene(scenes[1])))
+        if out[-1].observed.sum() < n:
+            raise SystemExit(f"{root}: {int(out[-1].observed.sum())} frames with the robot in view, fewer than --window {n}")
+    return out
+
+
+def window(seqs, n: int, seed: int, step: int):
+    """(Sequence, gt (n, 3), observed (n,)) of n frames in time order: a run of n consecutive
+    frames with the robot in view (the others carry no gradient), a pure function of (seed,
+    step). Any subset in time order is a valid sequence: each frame carries both odometries."""
+    rng = np.random.default_rng([seed, step])
+    s = seqs[rng.integers(len(seqs))]
+    seen = np.flatnonzero(s.observed)
+    start = int(rng.integers(0, len(seen) - n + 1))
+    idx = seen[start:start + n]
+    return type(s.seq)(*(np.asarray(a)[idx] for a in s.seq)), s.gt[idx].astype(np.float32), s.observed[idx]
+
+
+def make_fns(model, tx):
+    """(grad_fn, update_fn), jitted apart: grad_fn(zoom_params, params, seq, gt, observed) ->
+    ((loss, fused abs errors (n, 3)), grads); update_fn(grads, opt_state, zoom_params)."""
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    from rhaml_jax import pipeline, planar
+
+    def loss(zp, params, seq, gt, observed):
+        iml = params.iml._replace(zoom=(zp, params.iml.zoom[1]))
+        r = pipeline.run(model, params._replace(iml=iml), seq)
+        d = planar.between(gt, r.xypsi)  # (n, 3) error in the true pose's frame
+        w = (observed & r.detected).astype(jnp.float32)
+        e = optax.huber_loss(d[:, :2], delta=HUBER_M).sum(-1) / HUBER_M + (1.0 - jnp.cos(d[:, 2]))
+        return jnp.sum(w * e) / jnp.maximum(w.sum(), 1.0), jnp.abs(d) * w[:, None]
+
+    def update(grads, opt_state, zp):
+        upd, opt_state = tx.update(grads, opt_state, zp)
+        return optax.apply_updates(zp, upd), opt_state
+
+    return jax.jit(jax.value_and_grad(loss, has_aux=True)), jax.jit(update)
+
+
+def train_e2e(a, run_dir: Path) -> dict:
+    """The end-to-end fine-tuning (resumable): {"seconds" (steps after each process's first,
+    which is mostly compilation), "steps"}."""
+    import jax
+
+    from rhaml_jax import iml, pipeline, refine
+    from rhaml_jax.amlnet import shipped_checkpoint
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+    from rhaml_jax.amlnet.steps import make_optimizer
+
+    seqs = load_sequences([Path(p) for p in a.train], a.window)
+    iml_model, iml_params = iml.load_iml(zoom=shipped_checkpoint("zoom_cpu"), zoom_mirror=True)
+    refine_cfg, refiner = refine.load_stage(None, a.train[0])
+    mods = tuple(a.through.split(","))
+    model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=mods, chunk=a.window),
+                                   refine_cfg if "ir" in mods else None)
+    params = pipeline.PipelineParams(iml_params, refiner if "ir" in mods else None)
+    tx = make_optimizer(a.lr, a.steps, weight_decay=0.05, warmup=a.warmup, clip=a.clip)
+    grad_fn, update_fn = make_fns(model, tx)
+    zp, stats = iml_params.zoom
+    opt_state = tx.init(zp)
+
+    ck = Checkpoints(run_dir, keep=2)
+    src = Checkpoints(shipped_checkpoint("zoom_cpu"), read_only=True)
+    meta = {k: v for k, v in src.meta().items() if k in ("model_config", "robot")}
+    src.close()
+    meta |= {"weights_only": False, "train_config": {"clip": a.clip, "lr": a.lr, "steps": a.steps, "window": a.window,
+                                                     "through": a.through, "seed": a.seed}}
+    start, seconds = 0, 0.0
+    if ck.latest_step() is not None:
+        start = ck.latest_step()
+        st = ck.restore(start, {"params": zp, "batch_stats": stats, "opt_state": opt_state})
+        zp, opt_state = st["params"], st["opt_state"]
+        seconds = ck.meta(start).get("seconds", 0.0)
+    log = (run_dir / "metrics.jsonl").open("a")
+    for step in range(start, a.steps):
+        t = time.perf_counter()
+        seq, gt, observed = window(seqs, a.window, a.seed, step)
+        (value, err), g = grad_fn(zp, params, seq, gt, observed)
+        zp, opt_state = update_fn(g, opt_state, zp)
+        value = float(value)
+        if step > start:  # the first step of a process is mostly compilation: not budget
+            seconds += time.perf_counter() - t
+        n = max(int(observed.sum()), 1)
+        err = np.asarray(err).sum(0) / n
+        log.write(json.dumps({"step": step + 1, "loss": value, "dx_cm": 100 * float(err[0]), "dy_cm": 100 * float(err[1]),
+                              "dpsi_deg": float(np.degrees(err[2])), "seconds": round(seconds, 1)}) + "\n")
+        log.flush()
+        if (step + 1) % a.ckpt_every == 0 or step + 1 == a.steps:
+            ck.save(step + 1, {"params": zp, "batch_stats": stats, "opt_state": opt_state},
+                    meta | {"step": step + 1, "seconds": seconds})
+        if (step + 1) % 10 == 0:
+            print(f"e2e step {step + 1}/{a.steps}: loss {value:.4f} ({seconds:.0f} s)", flush=True)
+    ck.close()
+    jax.clear_caches()
+    return {"seconds": round(seconds, 1), "steps": a.steps}
+
+
+def bop_for_alone(train: list[str], val: str, out: Path) -> Path:
+    """A BOP set whose train split holds the training scenarios' scenes and whose val split the
+    validation scenario's (symbolic links), the layout `train --stage zoom` reads."""
+    if (out / "camera.json").exists():
+        return out
+    tmp = out.with_name(out.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    (tmp / "train").mkdir(parents=True)
+    (tmp / "val").mkdir()
+    shutil.copy(Path(train[0]) / "camera.json", tmp / "camera.json")
+    shutil.copytree(Path(train[0]) / "models", tmp / "models")
+    k = 0
+    for root in train:
+        for scene in sorted((Path(root) / "test").iterdir()):
+            (tmp / "train" / f"{k:06d}").symlink_to(scene.resolve())
+            k += 1
+    for j, scene in enumerate(sorted((Path(val) / "test").iterdir())):
+        (tmp / "val" / f"{j:06d}").symlink_to(scene.resolve())
+    tmp.rename(out)
+    return out
+
+
+def evaluate_stages(zoom_dirs: dict, sets: dict) -> dict:
+    """IML+IR+PGO with the shipped AMLNet and refiner and each zoom stage (same config: one
+    compiled pipeline serves them all): the IML, IR and fused errors per stage and set (metrics
+    over the frames with the robot in view, as evaluate scores them)."""
+    from rhaml_jax import iml, pipeline, refine
+    from rhaml_jax.amlnet import load_model
+    from rhaml_jax.evaluate import score
+    from rhaml_jax.sequence import run_scenes
+
+    first = next(iter(zoom_dirs.values()))
+    iml_model, iml_params = iml.load_iml(zoom=first, zoom_mirror=True)
+    refine_cfg, refiner = refine.load_stage(None, Path(next(iter(sets.values()))[0][0].rgb).parents[3])
+    model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=("iml", "ir", "pgo")), refine_cfg)
+    out = {}
+    for name, zoom_dir in zoom_dirs.items():
+        net, zp, zs = load_model(zoom_dir)
+        if net.cfg != iml_model.zoom.cfg:
+            raise SystemExit(f"{zoom_dir}: zoom config {net.cfg.name}, not {iml_model.zoom.cfg.name}")
+        params = pipeline.PipelineParams(iml_params._replace(zoom=(zp, zs)), refiner)
+        out[name] = {}
+        for set_name, scenes in sets.items():
+            runs, _, seconds = run_scenes(model, params, scenes)
+            cat = lambda f: np.concatenate([f(r) for r in runs])  # noqa: E731
+            det, obs, gt = cat(lambda r: r.result.detected), cat(lambda r: r.data.observed), cat(lambda r: r.data.gt)
+            m = {stage: score(cat(f), det, obs, gt) for stage, f in (
+                ("iml", lambda r: r.result.iml.xypsi), ("ir", lambda r: r.result.ir.xypsi), ("fused", lambda r: r.result.xypsi))}
+            out[name][set_name] = m | {"fps": float(len(obs) / seconds)}
+            print(f"{name:8s} {set_name:8s} " + "  ".join(f"{st} {m[st]['dx_cm'][0]:.2f}/{m[st]['dy_cm'][0]:.2f}/"
+                                                         f"{m[st]['dpsi_deg'][0]:.2f} ATE {m[st]['ate']:.3f}"
+                                                         for st in ("iml", "ir", "fused")), flush=True)
+    return out
+
+
+def run(a) -> dict:
+    from rhaml_jax import tune_allocator
+    from rhaml_jax.amlnet import shipped_checkpoint
+
+    tune_allocator()
+    runs = Path(a.runs)
+    e2e_dir = runs / "e2e"
+    e2e_dir.mkdir(parents=True, exist_ok=True)
+    res = {"protocol": {k: v for k, v in vars(a).items()}}
+    res["e2e"] = train_e2e(a, e2e_dir)
+    # the alone stage gets the same wall time: steps from the rate its own training reaches here
+    alone_steps = a.alone_steps or max(1, int(res["e2e"]["seconds"] / a.alone_step_seconds))
+    data = bop_for_alone(a.train, a.val, runs / "alone_bop")
+    res["alone"] = _paper.train("zoom", "zoom_cpu", data, runs / "alone", alone_steps, a.seed,
+                                "--init", str(shipped_checkpoint("zoom_cpu")), "--lr", str(a.lr), "--warmup", str(a.warmup),
+                                "--batch", "32", "--w-xy", "69.4", "526", "--val-every", str(alone_steps),
+                                "--val-batches", "2", *a.train_args)
+    res["alone"]["steps"] = alone_steps
+    _paper.write_json(Path(a.out), res)
+    sets = _paper.scenario_sets(a.ours, a.heldout, a.frames)
+    res["eval"] = evaluate_stages({"shipped": shipped_checkpoint("zoom_cpu"), "alone": runs / "alone", "e2e": e2e_dir}, sets)
+    _paper.write_json(Path(a.out), res)
+    return res
+
+
+def parse(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--train", nargs="+", required=True, help="rendezvous scenario roots to fine-tune on")
+    ap.add_argument("--val", required=True, help="a rendezvous root: the alone training's val split")
+    ap.add_argument("--ours", required=True)
+    ap.add_argument("--heldout", default=None)
+    ap.add_argument("--runs", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--through", default="iml,ir,pgo", help="modules the gradient passes through (iml,pgo: without IR)")
+    ap.add_argument("--steps", type=int, default=150)
+    ap.add_argument("--window", type=int, default=32, help="frames per step (all with the robot in view)")
+    ap.add_argument("--lr", type=float, default=1e-4)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--clip", type=float, default=5.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--ckpt-every", type=int, default=25)
+    ap.add_argument("--alone-steps", type=int, default=None, help="default: the e2e wall time / --alone-step-seconds")
+    ap.add_argument("--alone-step-seconds", type=float, default=0.25,
+                    help="a zoom training step of 32 crops here (BENCHMARKS.md: 120-190 crops/s)")
+    ap.add_argument("--frames", type=int, default=None, help="first N frames of each evaluation scenario")
+    ap.add_argument("--train-args", nargs=argparse.REMAINDER, default=[])
+    return ap.parse_args(argv)
+
+
+def main(argv=None):
+    return run(parse(argv))
+
+
+if __name__ == "__main__":
+    main()
