@@ -2,7 +2,8 @@
 pose graph's fused error, through refinement (IR) and the pose graph (PGO), against the same
 stage fine-tuned alone (its own per-crop loss, `train --stage zoom --init`) on the same images
 for the same extra wall time; then the shipped, the alone and the end-to-end stage each run
-IML+IR+PGO on circle + sine (ours and held-out), reporting every stage's error.
+IML+IR+PGO on circle + sine (ours and held-out), reporting every stage's error and, per frame,
+the change against the shipped stage with a paired bootstrap interval (OUT.npz: the errors).
 
   python experiments/e2e_finetune.py --train /work/data/e2e_rv11 /work/data/e2e_rv12 \
       --val /work/data/e2e_rv13 --ours /work/data/ours --heldout /work/data/heldout \
@@ -12,7 +13,8 @@ Training sequences: two-robot rendezvous scenarios (`generate --scenario rendezv
 seeds other than the evaluation's), interleaved in time; each step takes a run of `--window`
 consecutive frames with the robot in view, a pure function of (seed, step), so a resumed run is exact.
 The loss is the fused pose error over the window's detected frames with the robot in view:
-Huber(dx, dy; 5 cm) / 5 cm + (1 - cos dpsi). Only the zoom stage's weights move (AMLNet, the
+Huber(dx, dy; 5 cm) / 5 cm + (1 - cos dpsi), plus `--iml-weight` times the same error of IML's own
+estimates (an anchor; 0 by default). Only the zoom stage's weights move (AMLNet, the
 refiner and the BatchNorm statistics stay as shipped); gradient and AdamW update are two jitted
 functions (DESIGN.md section 8). Checkpoints every `--ckpt-every` steps (Orbax, atomic) in the
 zoom checkpoint layout, so `evaluate --zoom RUN` reads the result.
@@ -63,9 +65,22 @@ def window(seqs, n: int, seed: int, step: int):
     return type(s.seq)(*(np.asarray(a)[idx] for a in s.seq)), s.gt[idx].astype(np.float32), s.observed[idx]
 
 
-def make_fns(model, tx):
+def pose_error(est, gt):
+    """(n,) Huber(dx, dy; 5 cm) / 5 cm + (1 - cos dpsi) of planar estimates (n, 3) against truth."""
+    import jax.numpy as jnp
+    import optax
+
+    from rhaml_jax import planar
+
+    d = planar.between(gt, est)  # (n, 3) error in the true pose's frame
+    return optax.huber_loss(d[:, :2], delta=HUBER_M).sum(-1) / HUBER_M + (1.0 - jnp.cos(d[:, 2]))
+
+
+def make_fns(model, tx, iml_weight: float = 0.0):
     """(grad_fn, update_fn), jitted apart: grad_fn(zoom_params, params, seq, gt, observed) ->
-    ((loss, fused abs errors (n, 3)), grads); update_fn(grads, opt_state, zoom_params)."""
+    ((loss, fused abs errors (n, 3)), grads); update_fn(grads, opt_state, zoom_params). The loss
+    is the fused error, plus `iml_weight` times the same error of IML's own estimates (an
+    anchor that keeps the stage's output meaningful on its own; 0: the fused error alone)."""
     import jax
     import jax.numpy as jnp
     import optax
@@ -75,10 +90,9 @@ def make_fns(model, tx):
     def loss(zp, params, seq, gt, observed):
         iml = params.iml._replace(zoom=(zp, params.iml.zoom[1]))
         r = pipeline.run(model, params._replace(iml=iml), seq)
-        d = planar.between(gt, r.xypsi)  # (n, 3) error in the true pose's frame
         w = (observed & r.detected).astype(jnp.float32)
-        e = optax.huber_loss(d[:, :2], delta=HUBER_M).sum(-1) / HUBER_M + (1.0 - jnp.cos(d[:, 2]))
-        return jnp.sum(w * e) / jnp.maximum(w.sum(), 1.0), jnp.abs(d) * w[:, None]
+        e = pose_error(r.xypsi, gt) + iml_weight * pose_error(r.iml.xypsi, gt)
+        return jnp.sum(w * e) / jnp.maximum(w.sum(), 1.0), jnp.abs(planar.between(gt, r.xypsi)) * w[:, None]
 
     def update(grads, opt_state, zp):
         upd, opt_state = tx.update(grads, opt_state, zp)
@@ -105,7 +119,7 @@ def train_e2e(a, run_dir: Path) -> dict:
                                    refine_cfg if "ir" in mods else None)
     params = pipeline.PipelineParams(iml_params, refiner if "ir" in mods else None)
     tx = make_optimizer(a.lr, a.steps, weight_decay=0.05, warmup=a.warmup, clip=a.clip)
-    grad_fn, update_fn = make_fns(model, tx)
+    grad_fn, update_fn = make_fns(model, tx, a.iml_weight)
     zp, stats = iml_params.zoom
     opt_state = tx.init(zp)
 
@@ -114,7 +128,8 @@ def train_e2e(a, run_dir: Path) -> dict:
     meta = {k: v for k, v in src.meta().items() if k in ("model_config", "robot")}
     src.close()
     meta |= {"weights_only": False, "train_config": {"clip": a.clip, "lr": a.lr, "steps": a.steps, "window": a.window,
-                                                     "through": a.through, "seed": a.seed}}
+                                                     "through": a.through, "seed": a.seed,
+                                                     "iml_weight": a.iml_weight}}
     start, seconds = 0, 0.0
     if ck.latest_step() is not None:
         start = ck.latest_step()
@@ -167,11 +182,12 @@ def bop_for_alone(train: list[str], val: str, out: Path) -> Path:
     return out
 
 
-def evaluate_stages(zoom_dirs: dict, sets: dict) -> dict:
+def evaluate_stages(zoom_dirs: dict, sets: dict) -> tuple[dict, dict]:
     """IML+IR+PGO with the shipped AMLNet and refiner and each zoom stage (same config: one
-    compiled pipeline serves them all): the IML, IR and fused errors per stage and set (metrics
-    over the frames with the robot in view, as evaluate scores them)."""
-    from rhaml_jax import iml, pipeline, refine
+    compiled pipeline serves them all): (the IML, IR and fused metrics per stage and set, as
+    evaluate scores them; per-frame abs errors {"name/set/stage": (n, 3)} of the frames with
+    the robot in view, in frame order, for paired comparisons)."""
+    from rhaml_jax import iml, metrics, pipeline, refine
     from rhaml_jax.amlnet import load_model
     from rhaml_jax.evaluate import score
     from rhaml_jax.sequence import run_scenes
@@ -180,7 +196,7 @@ def evaluate_stages(zoom_dirs: dict, sets: dict) -> dict:
     iml_model, iml_params = iml.load_iml(zoom=first, zoom_mirror=True)
     refine_cfg, refiner = refine.load_stage(None, Path(next(iter(sets.values()))[0][0].rgb).parents[3])
     model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=("iml", "ir", "pgo")), refine_cfg)
-    out = {}
+    out, frames = {}, {}
     for name, zoom_dir in zoom_dirs.items():
         net, zp, zs = load_model(zoom_dir)
         if net.cfg != iml_model.zoom.cfg:
@@ -191,13 +207,28 @@ def evaluate_stages(zoom_dirs: dict, sets: dict) -> dict:
             runs, _, seconds = run_scenes(model, params, scenes)
             cat = lambda f: np.concatenate([f(r) for r in runs])  # noqa: E731
             det, obs, gt = cat(lambda r: r.result.detected), cat(lambda r: r.data.observed), cat(lambda r: r.data.gt)
-            m = {stage: score(cat(f), det, obs, gt) for stage, f in (
-                ("iml", lambda r: r.result.iml.xypsi), ("ir", lambda r: r.result.ir.xypsi), ("fused", lambda r: r.result.xypsi))}
+            m = {}
+            for stage, f in (("iml", lambda r: r.result.iml.xypsi), ("ir", lambda r: r.result.ir.xypsi),
+                             ("fused", lambda r: r.result.xypsi)):
+                est = cat(f)
+                m[stage] = score(est, det, obs, gt)
+                frames[f"{name}/{set_name}/{stage}"] = np.asarray(metrics.abs_errors(est[obs], gt[obs]))
             out[name][set_name] = m | {"fps": float(len(obs) / seconds)}
             print(f"{name:8s} {set_name:8s} " + "  ".join(f"{st} {m[st]['dx_cm'][0]:.2f}/{m[st]['dy_cm'][0]:.2f}/"
                                                          f"{m[st]['dpsi_deg'][0]:.2f} ATE {m[st]['ate']:.3f}"
                                                          for st in ("iml", "ir", "fused")), flush=True)
-    return out
+    return out, frames
+
+
+def paired_change(base: np.ndarray, new: np.ndarray, draws: int = 2000, seed: int = 0) -> dict:
+    """Change in mean |dx|, |dy| (cm), |dpsi| (deg) from `base` to `new` (abs errors (n, 3) of
+    the same frames) with a 95 % paired bootstrap interval over the frames: the test-set part
+    of the noise (not the training seed's)."""
+    d = (np.asarray(new) - np.asarray(base)) * np.array([100.0, 100.0, 180.0 / np.pi])
+    idx = np.random.default_rng(seed).integers(0, len(d), (draws, len(d)))
+    boot = d[idx].mean(1)  # (draws, 3)
+    lo, hi = np.percentile(boot, [2.5, 97.5], axis=0)
+    return {k: [float(d[:, i].mean()), float(lo[i]), float(hi[i])] for i, k in enumerate(("dx_cm", "dy_cm", "dpsi_deg"))}
 
 
 def run(a) -> dict:
@@ -210,17 +241,26 @@ def run(a) -> dict:
     e2e_dir.mkdir(parents=True, exist_ok=True)
     res = {"protocol": {k: v for k, v in vars(a).items()}}
     res["e2e"] = train_e2e(a, e2e_dir)
-    # the alone stage gets the same wall time: steps from the rate its own training reaches here
-    alone_steps = a.alone_steps or max(1, int(res["e2e"]["seconds"] / a.alone_step_seconds))
-    data = bop_for_alone(a.train, a.val, runs / "alone_bop")
-    res["alone"] = _paper.train("zoom", "zoom_cpu", data, runs / "alone", alone_steps, a.seed,
-                                "--init", str(shipped_checkpoint("zoom_cpu")), "--lr", str(a.lr), "--warmup", str(a.warmup),
-                                "--batch", "32", "--w-xy", "69.4", "526", "--val-every", str(alone_steps),
-                                "--val-batches", "2", *a.train_args)
-    res["alone"]["steps"] = alone_steps
+    if a.alone_run:  # the baseline of an earlier run with the same budget
+        alone_dir = Path(a.alone_run)
+        res["alone"] = {"reused": str(alone_dir), "val": _paper.last_validation(alone_dir / "metrics.jsonl")}
+    else:  # the alone stage gets the same wall time: steps from the rate its own training reaches here
+        alone_dir = runs / "alone"
+        alone_steps = a.alone_steps or max(1, int(res["e2e"]["seconds"] / a.alone_step_seconds))
+        data = bop_for_alone(a.train, a.val, runs / "alone_bop")
+        res["alone"] = _paper.train("zoom", "zoom_cpu", data, alone_dir, alone_steps, a.seed,
+                                    "--init", str(shipped_checkpoint("zoom_cpu")), "--lr", str(a.lr), "--warmup",
+                                    str(a.warmup), "--batch", "32", "--w-xy", "69.4", "526", "--val-every",
+                                    str(alone_steps), "--val-batches", "2", *a.train_args)
+        res["alone"]["steps"] = alone_steps
     _paper.write_json(Path(a.out), res)
     sets = _paper.scenario_sets(a.ours, a.heldout, a.frames)
-    res["eval"] = evaluate_stages({"shipped": shipped_checkpoint("zoom_cpu"), "alone": runs / "alone", "e2e": e2e_dir}, sets)
+    zoom_dirs = {"shipped": shipped_checkpoint("zoom_cpu"), "alone": alone_dir, "e2e": e2e_dir}
+    zoom_dirs |= dict(c.split("=", 1) for c in a.compare)
+    res["eval"], frames = evaluate_stages(zoom_dirs, sets)
+    np.savez_compressed(Path(a.out).with_suffix(".npz"), **frames)
+    res["change_vs_shipped"] = {f"{name}/{key.split('/', 1)[1]}": paired_change(frames[f"shipped/{key.split('/', 1)[1]}"], e)
+                                for key, e in frames.items() if (name := key.split("/")[0]) != "shipped"}
     _paper.write_json(Path(a.out), res)
     return res
 
@@ -241,6 +281,9 @@ def parse(argv=None) -> argparse.Namespace:
     ap.add_argument("--clip", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--ckpt-every", type=int, default=25)
+    ap.add_argument("--iml-weight", type=float, default=0.0, help="add this times IML's own error to the loss (0: fused only)")
+    ap.add_argument("--alone-run", default=None, help="reuse this alone run (from an earlier call with the same budget)")
+    ap.add_argument("--compare", nargs="*", default=[], help="more zoom stages to evaluate, as NAME=CHECKPOINT_DIR")
     ap.add_argument("--alone-steps", type=int, default=None, help="default: the e2e wall time / --alone-step-seconds")
     ap.add_argument("--alone-step-seconds", type=float, default=0.25,
                     help="a zoom training step of 32 crops here (BENCHMARKS.md: 120-190 crops/s)")

@@ -65,7 +65,25 @@ def run(a) -> dict:
     out["summary"] = summarize(out["rows"])
     _paper.write_json(Path(a.out), out)
     figure(out, Path(a.figure) if a.figure else Path(a.out).with_suffix(".png"))
+    print(markdown(out["summary"]))
     return out
+
+
+def markdown(summary: list[dict]) -> str:
+    """BENCHMARKS.md's table: mean over seeds (spread between them). AMLNet alone: position only
+    (its heading is a guess at this size); IML: AMLNet + the shipped zoom stage."""
+    f = lambda v, d=1: f"{v[0]:.{d}f} ({v[1]:.{d}f})"  # noqa: E731
+    lines = ["| K | seeds | AMLNet alone, ours: dx / dy (cm) | IML, ours: dx / dy (cm) | dpsi (deg) | ATE | flips "
+             "| IML, held-out: dx (cm), ATE | paper: dx / dy, dpsi, ATE |", "| --- |" + " --- |" * 8]
+    for K in dict.fromkeys(r["K"] for r in summary):
+        rs = {r["column"]: r for r in summary if r["K"] == K}
+        a, z, h = rs.get("ours/amlnet"), rs.get("ours/amlnet+zoom"), rs.get("heldout/amlnet+zoom")
+        p = PAPER.get(K)
+        lines.append(" | ".join([
+            f"| {K}", str(z["seeds"]), f"{f(a['dx_cm'])} / {f(a['dy_cm'])}" if a else "",
+            f"{f(z['dx_cm'])} / {f(z['dy_cm'])}", f(z["dpsi_deg"]), f(z["ate"], 3), f(z["flips"], 0),
+            f"{f(h['dx_cm'])}, {f(h['ate'], 2)}" if h else "", f"{p[0]} / {p[1]}, {p[2]}, {p[3]} |" if p else " |"]))
+    return "\n".join(lines)
 
 
 def summarize(rows: list[dict]) -> list[dict]:

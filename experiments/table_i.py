@@ -1,0 +1,166 @@
+"""Table I (the paper's method comparison) at our scale: FrontNet retrained on our data, the
+shipped AMLNet alone (the whole image, FrontNet's setting) and under its zoom-in stage (the
+pipeline's IML), and RHAML (IML + IR + PGO), on circle + sine (ours and the held-out set).
+
+  python experiments/table_i.py --data /work/data/v1_train --ours /work/data/ours \
+      --heldout /work/data/heldout --runs /work/runs/table_i --out experiments/results/table_i.json
+
+Resumable: a finished FrontNet training is reused, an interrupted one resumes from its
+checkpoint; the JSON and the .npz beside it are rewritten after every row. The .npz holds the
+per-frame estimates of every row and set (keys ROW/SET/est, ROW/SET/gt: (N, 3) x, y (m), psi
+(rad); ROW/SET/scenario: (N,) "circle" | "sine"; the detected frames with the robot in view;
+truth/SET/SCENARIO: every in-view frame's true pose), which fig5_violin.py and
+fig6_trajectories.py plot without evaluating again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _paper  # noqa: E402
+
+ROWS = {"frontnet": "FrontNet", "amlnet": "AMLNet (whole image)", "iml": "AMLNet (IML)", "rhaml": "RHAML"}
+MODULES = {"frontnet": ("iml",), "amlnet": ("iml",), "iml": ("iml",), "rhaml": ("iml", "ir", "pgo")}
+# DESIGN.md section 6: (dx, dy (cm), dpsi (deg): mean, std), ATE, params (M), MACs (G); both AMLNet rows
+# stand beside the paper's AMLNet (the paper's IML is AMLNet on the whole 224 x 224 image).
+_AML = ((2.9, 2.3), (7.3, 6.6), (6.8, 12.9), 0.29, 49.8, 8.8)
+PAPER = {"frontnet": ((30.3, 36.7), (50.9, 75.8), (64.9, 53.2), 2.21, 0.33, 0.07), "amlnet": _AML, "iml": _AML,
+         "rhaml": ((1.6, 1.5), (0.9, 1.1), (0.4, 0.4), 0.03, 109, 50.7)}
+
+
+def refiner_size() -> dict:
+    """The shipped refiner's parameters (leaves of its params pytree) and MACs per iteration at
+    batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and matrix products)."""
+    import math
+
+    import jax
+    import jax.numpy as jnp
+
+    from rhaml_jax.amlnet.count import jaxpr_macs
+    from rhaml_jax.refine import net, shipped_refiner
+
+    r = shipped_refiner()
+    x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
+    macs = jaxpr_macs(jax.make_jaxpr(lambda p, x: net.apply(r.cfg, p, x))(r.params, x).jaxpr)
+    return {"params": int(sum(math.prod(v.shape) for v in jax.tree.leaves(r.params))), "macs": int(macs),
+            "iterations": r.cfg.n_iter}
+
+
+def sizes(frontnet_config: str) -> dict:
+    """Params and MACs per frame of each row (batch 1, each network at its input size)."""
+    from rhaml_jax.amlnet import describe
+
+    fn, aml, zoom = (describe(c) for c in (frontnet_config, "cpu", "zoom_cpu"))
+    ref = refiner_size()
+    iml = {"params": aml["params"] + zoom["params"], "macs": aml["macs"] + 2 * zoom["macs"]}
+    return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{frontnet_config}, {fn['input_shape']}"},
+            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"cpu, {aml['input_shape']}"},
+            "iml": iml | {"size_note": "AMLNet + zoom_cpu x 2 (the crop and its mirror image)"},
+            "rhaml": {"params": iml["params"] + ref["params"], "macs": iml["macs"] + ref["iterations"] * ref["macs"],
+                      "size_note": f"IML + refiner_cpu x {ref['iterations']} iterations ({ref['params']} params, "
+                                   f"{ref['macs']} MACs each; rendering and the pose graph not counted)"}}
+
+
+def validation_curve(metrics_jsonl: Path) -> list[dict]:
+    """Every validation of a training run: step, detection accuracy, |dx|, |dy| (cm), |dpsi| (deg)."""
+    keys = ("detection_acc", "dx_cm", "dy_cm", "dpsi_deg")
+    rows = [json.loads(line) for line in Path(metrics_jsonl).read_text().splitlines()]
+    return [{"step": r["step"], "loss": r.get("loss"), **{k: r[f"val_{k}"] for k in keys}} for r in rows if "val_dx_cm" in r]
+
+
+def save_npz(path: Path, arrays: dict) -> None:
+    """Atomically, like _paper.write_json."""
+    tmp = path.with_suffix(".tmp.npz")
+    with open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    tmp.replace(path)
+
+
+def run(a) -> dict:
+    from rhaml_jax import iml, tune_allocator
+
+    tune_allocator()
+    out_path = Path(a.out)
+    npz_path = out_path.with_suffix(".npz")
+    sets = _paper.scenario_sets(a.ours, a.heldout, a.frames)
+    run_dir = Path(a.runs) / f"{a.frontnet_config}_s{a.seed}"
+    ck = run_dir / "checkpoints"
+    step0 = max((int(p.name) for p in ck.iterdir() if p.name.isdigit()), default=0) if ck.is_dir() else 0
+    tr = _paper.train("amlnet", a.frontnet_config, Path(a.data), run_dir, a.steps, a.seed, "--batch", str(a.batch),
+                      "--val-every", str(max(a.steps // 8, 1)), *a.train_args)
+    prev = json.loads(out_path.read_text()).get("frontnet_training", {}) if step0 and out_path.exists() else {}
+    if "seconds" in prev:  # wall time of the earlier calls: all of it when the run had finished, else added
+        tr["seconds"] = prev["seconds"] if step0 >= a.steps else tr["seconds"] + prev["seconds"]
+    out = {"protocol": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()},
+           "frontnet_training": tr | {"run": str(run_dir), "curve": validation_curve(run_dir / "metrics.jsonl")},
+           "rows": {}}
+    loads = {"frontnet": dict(amlnet=run_dir, no_zoom=True), "amlnet": dict(no_zoom=True),
+             "iml": dict(zoom_mirror=True), "rhaml": dict(zoom_mirror=True)}
+    size, frames = sizes(a.frontnet_config), {}
+    for set_name, scenes in sets.items():  # the whole true paths, detected or not: truth/SET/SCENARIO (N, 3)
+        for scene in scenes:
+            frames[f"truth/{set_name}/{Path(scene[0].rgb).parents[3].name}"] = np.array([f.xypsi for f in scene if f.observed])
+    for key, kw in loads.items():
+        model, params = iml.load_iml(**kw)
+        row = {"label": ROWS[key], "modules": list(MODULES[key]), **size[key]}
+        for set_name, scenes in sets.items():
+            m, f = _paper.evaluate(MODULES[key], model, params, scenes)
+            row[set_name] = m
+            frames |= {f"{key}/{set_name}/{k}": v for k, v in f.items()}
+            print(f"{ROWS[key]:22s} {set_name:8s} {cells(m)}", flush=True)
+        out["rows"][key] = row
+        _paper.write_json(out_path, out)
+        save_npz(npz_path, frames)
+    print(markdown(out))
+    return out
+
+
+def cells(m: dict) -> str:
+    """One metrics dict as markdown cells: |dx| | |dy| | |dpsi| | ATE | flips | detected / in view | FPS."""
+    pm = lambda v: "n/a" if v is None else f"{v[0]:.1f} +- {v[1]:.1f}"  # noqa: E731
+    d = m["detection"]
+    ate = "n/a" if m["ate"] is None else f"{m['ate']:.3f}"
+    return (f"{pm(m['dx_cm'])} | {pm(m['dy_cm'])} | {pm(m['dpsi_deg'])} | {ate} | {m['flips']} | "
+            f"{d['tp']} / {d['tp'] + d['fn']} | {m['fps']:.1f}")
+
+
+def markdown(out: dict) -> str:
+    """Table I, one block per set, the paper's figures beside (ours only: the paper has no held-out set)."""
+    head = ("| method | abs dx (cm) | abs dy (cm) | abs dpsi (deg) | ATE | flips | detected / in view | FPS "
+            "| Params (M) | MACs (G) | paper: dx / dy / dpsi, ATE, Params, MACs |")
+    lines = []
+    sets = [s for s in ("ours", "heldout") if any(s in r for r in out["rows"].values())]
+    for s in sets:
+        lines += [f"\n{s}:\n", head, "|" + " --- |" * (head.count("|") - 1)]
+        for key, r in out["rows"].items():
+            p = PAPER[key]
+            paper = (f"{p[0][0]} +- {p[0][1]} / {p[1][0]} +- {p[1][1]} / {p[2][0]} +- {p[2][1]}, {p[3]}, {p[4]} M, {p[5]} G"
+                     if s == "ours" else "")
+            lines.append(f"| {r['label']} | {cells(r[s])} | {r['params'] / 1e6:.2f} | {r['macs'] / 1e9:.3f} | {paper} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True, help="BOP training set for FrontNet (train and val splits)")
+    ap.add_argument("--ours", required=True, help="root with circle/ and sine/ (our renderer)")
+    ap.add_argument("--heldout", default=None, help="root with the held-out circle/ and sine/")
+    ap.add_argument("--runs", required=True, help="folder for FrontNet's training run")
+    ap.add_argument("--out", required=True, help="results JSON (the per-frame .npz goes beside it)")
+    ap.add_argument("--steps", type=int, default=4000, help="FrontNet's steps (the shipped AMLNet's 4000)")
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario")
+    ap.add_argument("--frontnet-config", default="frontnet", help="e.g. tiny_frontnet for tests")
+    ap.add_argument("--train-args", nargs=argparse.REMAINDER, default=[], help="more train flags (last)")
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    main()
