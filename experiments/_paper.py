@@ -52,19 +52,24 @@ def scenario_sets(ours: Path, heldout: Path | None, frames: int | None = None) -
             for name, root in roots.items()}
 
 
+def data_root(frame) -> Path:
+    """The BOP data set folder of a frame (ROOT/SPLIT/SCENE/rgb/IMAGE.png), e.g. .../circle."""
+    return Path(frame.rgb).parents[3]
+
+
 def evaluate(mods: tuple[str, ...], iml_model, iml_params, scenes: list, fusion=None) -> tuple[dict, dict]:
     """One module combination over scenes: (the paper's metrics + flips, fps, median range ratio;
     per-frame arrays {"est", "gt", "scenario"} of the detected frames with the robot in view)."""
     from rhaml_jax.demo import run_combination
 
-    data_dir = Path(scenes[0][0].rgb).parents[3]
+    data_dir = data_root(scenes[0][0])
     m, runs = run_combination(mods, iml_model, iml_params, scenes, data_dir, fusion)
     est, gt, scen = [], [], []
     for r in runs:
         keep = r.result.detected & r.data.observed
         est.append(r.result.xypsi[keep])
         gt.append(r.data.gt[keep])
-        scen += [Path(r.data.frames[0].rgb).parents[3].name] * int(keep.sum())
+        scen += [data_root(r.data.frames[0]).name] * int(keep.sum())
     est, gt = np.concatenate(est), np.concatenate(gt)
     ratio = np.hypot(est[:, 0], est[:, 1]) / np.maximum(np.hypot(gt[:, 0], gt[:, 1]), 1e-9)
     m["median_range_ratio"] = float(np.median(ratio)) if len(ratio) else float("nan")
@@ -77,4 +82,13 @@ def write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(obj, indent=1))
+    tmp.replace(path)
+
+
+def write_npz(path: Path, arrays: dict) -> None:
+    """Arrays by name, atomically like write_json."""
+    path = Path(path)
+    tmp = path.with_suffix(".tmp.npz")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
     tmp.replace(path)

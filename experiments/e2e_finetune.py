@@ -131,12 +131,22 @@ def train_e2e(a, run_dir: Path) -> dict:
                                                      "through": a.through, "seed": a.seed,
                                                      "iml_weight": a.iml_weight}}
     start, seconds = 0, 0.0
+    log_path = run_dir / "metrics.jsonl"
     if ck.latest_step() is not None:
         start = ck.latest_step()
+        stored = ck.meta(start)
+        # a longer --steps extends a run (its schedule is then not the planned one); nothing else may differ
+        diff = {k: (v, meta["train_config"][k]) for k, v in stored["train_config"].items()
+                if k != "steps" and v != meta["train_config"][k]}
+        if diff:
+            raise SystemExit(f"{run_dir}: holds a run with other settings (stored, given): {diff}")
         st = ck.restore(start, {"params": zp, "batch_stats": stats, "opt_state": opt_state})
         zp, opt_state = st["params"], st["opt_state"]
-        seconds = ck.meta(start).get("seconds", 0.0)
-    log = (run_dir / "metrics.jsonl").open("a")
+        seconds = stored.get("seconds", 0.0)
+        # steps logged after the checkpoint (a killed run) are done again: drop their lines
+        kept = [line for line in log_path.read_text().splitlines() if json.loads(line)["step"] <= start]
+        log_path.write_text("".join(line + "\n" for line in kept))
+    log = log_path.open("a")
     for step in range(start, a.steps):
         t = time.perf_counter()
         seq, gt, observed = window(seqs, a.window, a.seed, step)
@@ -155,6 +165,7 @@ def train_e2e(a, run_dir: Path) -> dict:
                     meta | {"step": step + 1, "seconds": seconds})
         if (step + 1) % 10 == 0:
             print(f"e2e step {step + 1}/{a.steps}: loss {value:.4f} ({seconds:.0f} s)", flush=True)
+    log.close()
     ck.close()
     jax.clear_caches()
     return {"seconds": round(seconds, 1), "steps": a.steps}
@@ -194,7 +205,7 @@ def evaluate_stages(zoom_dirs: dict, sets: dict) -> tuple[dict, dict]:
 
     first = next(iter(zoom_dirs.values()))
     iml_model, iml_params = iml.load_iml(zoom=first, zoom_mirror=True)
-    refine_cfg, refiner = refine.load_stage(None, Path(next(iter(sets.values()))[0][0].rgb).parents[3])
+    refine_cfg, refiner = refine.load_stage(None, _paper.data_root(next(iter(sets.values()))[0][0]))
     model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=("iml", "ir", "pgo")), refine_cfg)
     out, frames = {}, {}
     for name, zoom_dir in zoom_dirs.items():
@@ -258,7 +269,7 @@ def run(a) -> dict:
     zoom_dirs = {"shipped": shipped_checkpoint("zoom_cpu"), "alone": alone_dir, "e2e": e2e_dir}
     zoom_dirs |= dict(c.split("=", 1) for c in a.compare)
     res["eval"], frames = evaluate_stages(zoom_dirs, sets)
-    np.savez_compressed(Path(a.out).with_suffix(".npz"), **frames)
+    _paper.write_npz(Path(a.out).with_suffix(".npz"), frames)
     res["change_vs_shipped"] = {f"{name}/{key.split('/', 1)[1]}": paired_change(frames[f"shipped/{key.split('/', 1)[1]}"], e)
                                 for key, e in frames.items() if (name := key.split("/")[0]) != "shipped"}
     _paper.write_json(Path(a.out), res)

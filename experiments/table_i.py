@@ -74,14 +74,6 @@ def validation_curve(metrics_jsonl: Path) -> list[dict]:
     return [{"step": r["step"], "loss": r.get("loss"), **{k: r[f"val_{k}"] for k in keys}} for r in rows if "val_dx_cm" in r]
 
 
-def save_npz(path: Path, arrays: dict) -> None:
-    """Atomically, like _paper.write_json."""
-    tmp = path.with_suffix(".tmp.npz")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-    tmp.replace(path)
-
-
 def run(a) -> dict:
     from rhaml_jax import iml, tune_allocator
 
@@ -105,7 +97,7 @@ def run(a) -> dict:
     size, frames = sizes(a.frontnet_config), {}
     for set_name, scenes in sets.items():  # the whole true paths, detected or not: truth/SET/SCENARIO (N, 3)
         for scene in scenes:
-            frames[f"truth/{set_name}/{Path(scene[0].rgb).parents[3].name}"] = np.array([f.xypsi for f in scene if f.observed])
+            frames[f"truth/{set_name}/{_paper.data_root(scene[0]).name}"] = np.array([f.xypsi for f in scene if f.observed])
     for key, kw in loads.items():
         model, params = iml.load_iml(**kw)
         row = {"label": ROWS[key], "modules": list(MODULES[key]), **size[key]}
@@ -116,7 +108,7 @@ def run(a) -> dict:
             print(f"{ROWS[key]:22s} {set_name:8s} {cells(m)}", flush=True)
         out["rows"][key] = row
         _paper.write_json(out_path, out)
-        save_npz(npz_path, frames)
+        _paper.write_npz(npz_path, frames)
     print(markdown(out))
     return out
 

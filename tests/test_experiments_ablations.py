@@ -94,8 +94,13 @@ def test_e2e_finetune_runs_and_resumes(tiny):
             assert np.isfinite(res["eval"][name]["ours"][stage]["dx_cm"][0])
     # the fine-tuned stage moved, and evaluate reads it as a zoom-in stage checkpoint
     assert res["eval"]["e2e"]["ours"]["iml"] != res["eval"]["shipped"]["ours"]["iml"]
-    # resumed with one more step: continues from its checkpoint
-    longer = e2e.parse([*argv[: argv.index("--steps") + 1], "3", *argv[argv.index("--steps") + 2:]])
-    assert e2e.train_e2e(longer, runs / "e2e")["steps"] == 3
+    # a step logged after the last checkpoint (a killed run) is done again on resume, its line replaced
+    with (runs / "e2e" / "metrics.jsonl").open("a") as fh:
+        fh.write(json.dumps({"step": 3, "loss": -1.0}) + "\n")
+    with_steps = lambda *kv: e2e.parse([*argv[: argv.index("--steps")], *kv, *argv[argv.index("--steps") + 2:]])  # noqa: E731
+    assert e2e.train_e2e(with_steps("--steps", "3"), runs / "e2e")["steps"] == 3
     log = [json.loads(s) for s in (runs / "e2e" / "metrics.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in log] == [1, 2, 3]
+    assert [r["step"] for r in log] == [1, 2, 3] and log[-1]["loss"] >= 0
+    # other settings than the stored run's are refused before anything changes
+    with pytest.raises(SystemExit, match="other settings"):
+        e2e.train_e2e(with_steps("--steps", "3", "--lr", "0.5"), runs / "e2e")
