@@ -3,7 +3,8 @@ shipped AMLNet alone (the whole image, FrontNet's setting) and under its zoom-in
 pipeline's IML), and RHAML (IML + IR + PGO), on circle + sine (ours and the held-out set).
 
   python experiments/table_i.py --data /work/data/v1_train --ours /work/data/ours \
-      --heldout /work/data/heldout --runs /work/runs/table_i --out experiments/results/table_i.json
+      --heldout /work/data/heldout --runs /work/runs/table_i --out experiments/results/table_i.json \
+      [--amlnet CKPT --zoom CKPT]   (other networks, e.g. the paper's scale trained elsewhere)
 
 Resumable: a finished FrontNet training is reused, an interrupted one resumes from its
 checkpoint; the JSON and the .npz beside it are rewritten after every row. The .npz holds the
@@ -52,16 +53,16 @@ def refiner_size() -> dict:
             "iterations": r.cfg.n_iter}
 
 
-def sizes(frontnet_config: str) -> dict:
+def sizes(frontnet_config: str, amlnet_config: str = "cpu", zoom_config: str = "zoom_cpu") -> dict:
     """Params and MACs per frame of each row (batch 1, each network at its input size)."""
     from rhaml_jax.amlnet import describe
 
-    fn, aml, zoom = (describe(c) for c in (frontnet_config, "cpu", "zoom_cpu"))
+    fn, aml, zoom = (describe(c) for c in (frontnet_config, amlnet_config, zoom_config))
     ref = refiner_size()
     iml = {"params": aml["params"] + zoom["params"], "macs": aml["macs"] + 2 * zoom["macs"]}
     return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{frontnet_config}, {fn['input_shape']}"},
-            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"cpu, {aml['input_shape']}"},
-            "iml": iml | {"size_note": "AMLNet + zoom_cpu x 2 (the crop and its mirror image)"},
+            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"{amlnet_config}, {aml['input_shape']}"},
+            "iml": iml | {"size_note": f"AMLNet + {zoom_config} x 2 (the crop and its mirror image)"},
             "rhaml": {"params": iml["params"] + ref["params"], "macs": iml["macs"] + ref["iterations"] * ref["macs"],
                       "size_note": f"IML + refiner_cpu x {ref['iterations']} iterations ({ref['params']} params, "
                                    f"{ref['macs']} MACs each; rendering and the pose graph not counted)"}}
@@ -92,9 +93,13 @@ def run(a) -> dict:
     out = {"protocol": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()},
            "frontnet_training": tr | {"run": str(run_dir), "curve": validation_curve(run_dir / "metrics.jsonl")},
            "rows": {}}
-    loads = {"frontnet": dict(amlnet=run_dir, no_zoom=True), "amlnet": dict(no_zoom=True),
-             "iml": dict(zoom_mirror=True), "rhaml": dict(zoom_mirror=True)}
-    size, frames = sizes(a.frontnet_config), {}
+    if a.amlnet and not a.zoom:
+        raise SystemExit("--amlnet: give its zoom-in stage too (--zoom): the IML and RHAML rows need one")
+    nets = dict(amlnet=a.amlnet, zoom=a.zoom)  # None: the shipped pair
+    loads = {"frontnet": dict(amlnet=run_dir, no_zoom=True), "amlnet": dict(amlnet=a.amlnet, no_zoom=True),
+             "iml": dict(nets, zoom_mirror=True), "rhaml": dict(nets, zoom_mirror=True)}
+    iml_model, _ = iml.load_iml(**loads["iml"])
+    size, frames = sizes(a.frontnet_config, iml_model.amlnet.cfg.name, iml_model.zoom.cfg.name), {}
     for set_name, scenes in sets.items():  # the whole true paths, detected or not: truth/SET/SCENARIO (N, 3)
         for scene in scenes:
             frames[f"truth/{set_name}/{_paper.data_root(scene[0]).name}"] = np.array([f.xypsi for f in scene if f.observed])
@@ -150,6 +155,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario")
     ap.add_argument("--frontnet-config", default="frontnet", help="e.g. tiny_frontnet for tests")
+    ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint of the AMLNet, IML and RHAML rows (default: the "
+                                                    "shipped amlnet_cpu; the paper's scale: a `paper`-config run)")
+    ap.add_argument("--zoom", default=None, help="its zoom-in stage (default: the shipped zoom_cpu)")
     ap.add_argument("--train-args", nargs=argparse.REMAINDER, default=[], help="more train flags (last)")
     return run(ap.parse_args(argv))
 

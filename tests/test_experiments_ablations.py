@@ -92,6 +92,9 @@ def test_e2e_finetune_runs_and_resumes(tiny):
     for name in ("shipped", "alone", "e2e"):
         for stage in ("iml", "ir", "fused"):
             assert np.isfinite(res["eval"][name]["ours"][stage]["dx_cm"][0])
+    assert out.with_suffix(".png").stat().st_size > 0 and set(np.load(out.with_suffix(".npz")).files) == {
+        f"{n}/ours/{st}" for n in ("shipped", "alone", "e2e") for st in ("iml", "ir", "fused")}
+    assert set(res["change_vs_shipped"]) == {f"{n}/ours/{st}" for n in ("alone", "e2e") for st in ("iml", "ir", "fused")}
     # the fine-tuned stage moved, and evaluate reads it as a zoom-in stage checkpoint
     assert res["eval"]["e2e"]["ours"]["iml"] != res["eval"]["shipped"]["ours"]["iml"]
     # a step logged after the last checkpoint (a killed run) is done again on resume, its line replaced
