@@ -62,9 +62,10 @@ def run(a) -> dict:
                           f"dpsi {m['dpsi_deg'][0]:6.1f} ATE {m['ate']:.3f} det {m['detection']}", flush=True)
             out["rows"].append(row)
             _paper.write_json(Path(a.out), out)
-    out["summary"] = summarize(out["rows"])
+    rows = [r for r in out["rows"] if r["seed"] in a.seeds]  # the JSON keeps other seeds' rows too
+    out["summary"] = summarize(rows)
     _paper.write_json(Path(a.out), out)
-    figure(out, Path(a.figure) if a.figure else Path(a.out).with_suffix(".png"))
+    figure(rows, Path(a.figure) if a.figure else Path(a.out).with_suffix(".png"))
     print(markdown(out["summary"]))
     return out
 
@@ -99,13 +100,12 @@ def summarize(rows: list[dict]) -> list[dict]:
     return res
 
 
-def figure(out: dict, path: Path) -> None:
+def figure(rows: list[dict], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = out["rows"]
     Ks = list(dict.fromkeys(r["K"] for r in rows))
     cols = [c for c in rows[0] if c.endswith("/amlnet+zoom")]
     fig, axes = plt.subplots(len(cols), 3, figsize=(11, 3.2 * len(cols)), squeeze=False)
