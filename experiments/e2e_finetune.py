@@ -1,13 +1,14 @@
 """End-to-end differentiable ablation: the zoom-in stage fine-tuned with the gradient of the
 pose graph's fused error, through refinement (IR) and the pose graph (PGO), against the same
 stage fine-tuned alone (its own per-crop loss, `train --stage zoom --init`) on the same images
-for the same extra wall time; then the shipped, the alone and the end-to-end stage each run
+for the same extra wall time (its steps: the e2e seconds / --alone-step-seconds); then the shipped, the alone and the end-to-end stage each run
 IML+IR+PGO on circle + sine (ours and held-out), reporting every stage's error and, per frame,
-the change against the shipped stage with a paired bootstrap interval (OUT.npz: the errors).
+the change against the shipped stage with a paired bootstrap interval (OUT.npz: the errors;
+OUT.png: the figure).
 
   python experiments/e2e_finetune.py --train /work/data/e2e_rv11 /work/data/e2e_rv12 \
       --val /work/data/e2e_rv13 --ours /work/data/ours --heldout /work/data/heldout \
-      --runs /work/runs/e2e --out experiments/results/e2e.json [--steps 150 --window 32]
+      --runs /work/runs/e2e --out experiments/results/e2e.json [--steps 300 --window 32 --iml-weight 1]
 
 Training sequences: two-robot rendezvous scenarios (`generate --scenario rendezvous --seed S`,
 seeds other than the evaluation's), interleaved in time; each step takes a run of `--window`
