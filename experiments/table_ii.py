@@ -7,8 +7,9 @@
       --out experiments/results/table_ii.json [--scale cpu|paper] [--configs C ...]
 
 Resumable: runs already in the JSON are kept, finished trainings are reused, an interrupted one
-resumes from its checkpoint; the JSON is rewritten after every run. The figure (--figure, default beside the JSON) shows each
-seed's |dx|, |dy| and ATE per kernel set, so a reader sees the spread between seeds.
+resumes from its checkpoint; the JSON is rewritten after every run. The figure (--figure,
+default beside the JSON) shows each seed's |dx|, |dy| and ATE per kernel set, so a reader sees
+the spread between seeds.
 """
 
 from __future__ import annotations
@@ -87,13 +88,18 @@ def markdown(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _mean(v) -> float:
+    """A metric's mean: the first of evaluate's [mean, std] pairs, or a scalar (ATE, flips)."""
+    return v[0] if isinstance(v, list) else v
+
+
 def summarize(rows: list[dict]) -> list[dict]:
     """Per kernel set and column: the mean over seeds and the spread (max - min) between them."""
     res = []
     for K in dict.fromkeys(r["K"] for r in rows):
         rs = [r for r in rows if r["K"] == K]
         for col in [k for k in rs[0] if "/" in k]:
-            vals = {m: [r[col][m][0] if isinstance(r[col][m], list) else r[col][m] for r in rs]
+            vals = {m: [_mean(r[col][m]) for r in rs]
                     for m in ("dx_cm", "dy_cm", "dpsi_deg", "ate", "flips")}
             res.append({"K": K, "column": col, "seeds": len(rs),
                         **{m: [float(np.mean(v)), float(np.max(v) - np.min(v))] for m, v in vals.items()}})
@@ -113,7 +119,7 @@ def figure(rows: list[dict], path: Path) -> None:
         for j, (metric, label) in enumerate((("dx_cm", "abs dx (cm)"), ("dy_cm", "abs dy (cm)"), ("ate", "ATE"))):
             ax = axes[i, j]
             for k, K in enumerate(Ks):
-                v = [r[col][metric][0] if isinstance(r[col][metric], list) else r[col][metric] for r in rows if r["K"] == K]
+                v = [_mean(r[col][metric]) for r in rows if r["K"] == K]
                 ax.scatter([k] * len(v), v, color="C0", zorder=3)
                 ax.hlines(np.mean(v), k - 0.25, k + 0.25, color="C0")
                 if col.startswith("ours"):
