@@ -15,8 +15,12 @@ Named configs
   (see `CPU_RATIONALE`), plus its Table II ablation ``cpu_k0``, ``cpu_k3``, ``cpu_k35``.
 - ``zoom_cpu``: the zoom-in stage that goes with ``cpu`` (`rhaml_jax.zoom`): 64 x 64
   crops around AMLNet's estimate, its range, bearing and heading corrections out.
+- ``cpu_heat``: AMLNet with the dense head (`amlnet.heatmap`) on the luminance of a 256 x 320
+  image (twice `cpu`'s resolution), three stages (1, 1, 2) of (32, 64, 128) with the paper's
+  ACN, 0.38 M parameters, 0.22 GMACs: the first stage for images our renderer did not make
+  (issue 18); ``zoom_cpu_luma``: `zoom_cpu` on luminance crops, its partner.
 - ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
-- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_zoom``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
+- ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_zoom``, ``tiny_heat``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
   compiler needs ~0.1 s per fused kernel, so tests use the smallest networks that cover the code).
 """
 
@@ -62,6 +66,15 @@ class AMLNetConfig:
     pool: "gap" is the paper's global average pooling; "flatten" feeds the whole final
       feature grid to the neck, so the image position of the robot (its bearing) reaches the
       head directly instead of through zero-padding artefacts (a documented option).
+    head: "global" is the paper's FC head on pooled features (one pose per image);
+      "heatmap" is a dense head at stride 8 (`amlnet.heatmap`): a CenterNet-style map of where
+      the robot's point `zoom_centre_z_m` above the ground projects, with a sub-cell offset,
+      log range and heading per cell. The bearing then comes from the peak's image column
+      (geometry) instead of a regression; it needs three or more stages (the last at stride 16
+      is upsampled into the stride-8 head) and ignores pool and neck.
+    luma: the network sees the image's luminance (replicated to three channels) instead of
+      its colours, so no decision can rest on a hue (the held-out set paints the robot in
+      hues training never gives a part).
     """
 
     name: str
@@ -82,6 +95,8 @@ class AMLNetConfig:
     zoom_length_m: float = 0.455
     zoom_centre_z_m: float = 0.12
     zoom_factor: float = 2.0
+    head: Literal["global", "heatmap"] = "global"
+    luma: bool = False
     kind: Literal["amlnet"] = "amlnet"
 
     def __post_init__(self):
@@ -104,6 +119,11 @@ class AMLNetConfig:
             raise RhamlError(f"config {self.name}: task must be 'localize' or 'zoom', got {self.task!r}")
         if self.task == "zoom" and (h != w or self.zoom_length_m <= 0 or self.zoom_factor <= 0):
             raise RhamlError(f"config {self.name}: a zoom network needs a square input and positive zoom_length_m, zoom_factor")
+        if self.head not in ("global", "heatmap"):
+            raise RhamlError(f"config {self.name}: head must be 'global' or 'heatmap', got {self.head!r}")
+        if self.head == "heatmap" and (self.task != "localize" or n < 3 or self.angle_head != "cossin"):
+            raise RhamlError(f"config {self.name}: a heatmap head needs task 'localize', at least three stages and "
+                             "angle_head 'cossin'")
         if self.pool not in ("gap", "flatten"):
             raise RhamlError(f"config {self.name}: pool must be 'gap' or 'flatten', got {self.pool!r}")
 
@@ -186,11 +206,18 @@ CONFIGS: dict[str, ModelConfig] = {
     "cpu_psi": _amlnet("cpu_psi", **{**_CPU, "angle_head": "psi"}),
     "zoom_cpu": _amlnet("zoom_cpu", task="zoom", input_hw=(64, 64), depths=(1, 1, 3, 1), dims=(32, 64, 128, 256),
                         mlp_ratios=(4, 4, 4, 3), neck=(256,), pool="flatten", angle_head="axis", layer_scale_init=0.1),
+    "zoom_cpu_luma": _amlnet("zoom_cpu_luma", task="zoom", input_hw=(64, 64), depths=(1, 1, 3, 1), dims=(32, 64, 128, 256),
+                             mlp_ratios=(4, 4, 4, 3), neck=(256,), pool="flatten", angle_head="axis", layer_scale_init=0.1,
+                             luma=True),
+    "cpu_heat": _amlnet("cpu_heat", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128), mlp_ratios=(4, 4, 4),
+                        angle_head="cossin", head="heatmap", luma=True, layer_scale_init=0.1),
     "frontnet": FrontNetConfig("frontnet"),
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),
     "tiny_k0": _amlnet("tiny_k0", acn_kernels=(), **_TINY),
     "micro": _amlnet("micro", input_hw=(16, 16), depths=(1, 1), dims=(16, 16), mlp_ratios=(2, 2), neck=(8,), layer_scale_init=0.1),
+    "tiny_heat": _amlnet("tiny_heat", input_hw=(32, 48), depths=(1, 1, 1), dims=(16, 16, 32), mlp_ratios=(2, 2, 2),
+                         angle_head="cossin", head="heatmap", luma=True, layer_scale_init=0.1),
     "tiny_zoom": _amlnet("tiny_zoom", task="zoom", angle_head="axis", pool="flatten", **_TINY),
     "tiny_frontnet": FrontNetConfig("tiny_frontnet", input_hw=(32, 32), stem_channels=8, channels=(8, 8, 16)),
 }

@@ -37,7 +37,12 @@ __all__ = ["amlnet_loss", "decode"]
 
 
 def decode(out, angle_head: str = "psi") -> dict:
-    """Raw head (B, 4|5|7) -> dict(o probability, x, y, psi) (psi in (-pi, pi])."""
+    """Raw head (B, 4|5|7) -> dict(o probability, x, y, psi) (psi in (-pi, pi]); a heatmap
+    head's dense map (B, Gh, Gw, 6) is decoded at its peak (`heatmap.decode_heatmap`)."""
+    if out.ndim == 4:
+        from rhaml_jax.amlnet.heatmap import decode_heatmap
+
+        return decode_heatmap(out)
     if angle_head == "cossin":
         psi = jnp.arctan2(out[:, 4], out[:, 3])
     elif angle_head == "axis":

@@ -2,8 +2,9 @@
 2x2/2 downsampling before stages 2-4; global average pooling (or, with pool="flatten", the
 whole final grid); FC neck (GELU); linear head, scaled by `scale_head`.
 
-Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std).
-Output: raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
+Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std;
+with luma=True first replaced by their luminance in all three channels).
+Output (head="heatmap": the dense map (B, H/8, W/8, 6) of `amlnet.heatmap`): raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
 angle_head = "cossin", or (B, 7) = (o logit, x, y, cos, sin, cos 2psi, sin 2psi) with
 angle_head = "axis"; `loss.decode` turns each into (o probability, x, y, psi).
 """
@@ -14,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
-from rhaml_jax.amlnet import ops
+from rhaml_jax.amlnet import heatmap, ops
 from rhaml_jax.amlnet.block import AIncepBlock
 from rhaml_jax.amlnet.init import HostInit
 from rhaml_jax.amlnet.config import AMLNetConfig, num_outputs
@@ -34,6 +35,7 @@ ZOOM_OFFSET = (0.0,) * 7
 ZOOM_SCALE = (1.0, 0.15, 0.05, 1.0, 1.0, 1.0, 1.0)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+LUMA = (0.299, 0.587, 0.114)  # ITU-R BT.601 luminance weights (config luma=True)
 
 
 def scale_head(raw, task: str = "localize"):
@@ -72,15 +74,25 @@ class AMLNet(nnx.Module):
             stages.append(nnx.List([AIncepBlock(c, r, cfg, init=init) for _ in range(depth)]))
         self.downs = nnx.List(downs)
         self.stages = nnx.List(stages)
+        if cfg.head == "heatmap":
+            # stride-8 features, the last stage upsampled onto them, and the cell's normalised
+            # (u, v) (so the range can also use where on the floor the robot stands)
+            width = cfg.dims[1] + cfg.dims[-1] + 2
+            self.neck = nnx.List([Linear(width, cfg.dims[1], init=init)])
+            self.head = Linear(cfg.dims[1], heatmap.CHANNELS, init=init)
+            return
         gh, gw = cfg.final_grid
         widths = (cfg.dims[-1] * (gh * gw if cfg.pool == "flatten" else 1),) + tuple(cfg.neck)
         self.neck = nnx.List([Linear(a, b, init=init) for a, b in zip(widths[:-1], widths[1:])])
         self.head = Linear(widths[-1], num_outputs(cfg), init=init)
 
-    def features(self, images, train: bool = False, key=None, impl: str = "fast"):
+    def stage_outputs(self, images, train: bool = False, key=None, impl: str = "fast") -> list:
+        """[(B, H / 4 / 2^i, W / 4 / 2^i, dims[i]) for each stage i]."""
         patch = ops.patchify if impl == "fast" else ops.patchify_ref
+        if self.cfg.luma:
+            images = jnp.repeat(images @ jnp.asarray(LUMA, images.dtype)[:, None], 3, axis=-1)
         x = self.stem_norm(patch(normalize_images(images), self.stem[...], self.stem_b[...]), train)
-        n = 0
+        n, outs = 0, []
         for i, stage in enumerate(self.stages):
             if i:
                 d = self.downs[i - 1]
@@ -89,13 +101,28 @@ class AMLNet(nnx.Module):
                 k = None if key is None else jax.random.fold_in(key, n)
                 x = blk(x, train, k, impl)
                 n += 1
+            outs.append(x)
+        return outs
+
+    def features(self, images, train: bool = False, key=None, impl: str = "fast"):
+        x = self.stage_outputs(images, train, key, impl)[-1]
         if self.cfg.pool == "flatten":
             return x.reshape(x.shape[0], -1)
         return jnp.mean(x, axis=(1, 2))
 
     def __call__(self, images, train: bool = False, key=None, impl: str = "fast"):
-        h = self.features(images, train, key, impl)
         act = ops.gelu if impl == "fast" else ops.gelu_ref
+        if self.cfg.head == "heatmap":
+            outs = self.stage_outputs(images, train, key, impl)
+            f8, top = outs[1], outs[-1]
+            up = 2 ** (len(outs) - 2)
+            top = jnp.repeat(jnp.repeat(top, up, axis=1), up, axis=2)
+            B, gh, gw, _ = f8.shape
+            v, u = jnp.meshgrid((jnp.arange(gh) + 0.5) / gh * 2 - 1, (jnp.arange(gw) + 0.5) / gw * 2 - 1, indexing="ij")
+            coords = jnp.broadcast_to(jnp.stack([u, v], -1).astype(f8.dtype), (B, gh, gw, 2))
+            h = act(self.neck[0](jnp.concatenate([f8, top, coords], -1)))
+            return heatmap.transform_head(self.head(h))
+        h = self.features(images, train, key, impl)
         for fc in self.neck:
             h = act(fc(h))
         return scale_head(self.head(h), self.cfg.task)

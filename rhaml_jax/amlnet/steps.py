@@ -15,6 +15,7 @@ import jax
 import optax
 
 from rhaml_jax.amlnet.functional import Net
+from rhaml_jax.amlnet.heatmap import heatmap_loss
 from rhaml_jax.amlnet.loss import amlnet_loss
 
 __all__ = ["Steps", "make_steps", "make_optimizer", "make_schedule"]
@@ -47,10 +48,14 @@ def make_steps(net: Net, tx: optax.GradientTransformation, w_psi: float = 3.0, w
                shardings: tuple | None = None, w_xy: tuple[float, float] = (1.0, 1.0)) -> Steps:
     """`shardings` = (replicated, batch-sharded) NamedShardings for data parallelism."""
     head = net.cfg.angle_head
+    dense = getattr(net.cfg, "head", "global") == "heatmap"
 
     def loss_fn(params, stats, images, observed, pose, key):
         out, new_stats = net.train_apply(params, stats, images, key)
-        loss, parts = amlnet_loss(out, observed, pose, head, w_psi, w_p, w_xy)
+        if dense:
+            loss, parts = heatmap_loss(out, observed, pose, net.cfg.zoom_centre_z_m, w_psi, w_p)
+        else:
+            loss, parts = amlnet_loss(out, observed, pose, head, w_psi, w_p, w_xy)
         return loss, (parts, new_stats)
 
     def grad_step(params, stats, images, observed, pose, key):

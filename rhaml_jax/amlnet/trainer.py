@@ -10,6 +10,8 @@ float reassociation.
 
 from __future__ import annotations
 
+import dataclasses
+
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -118,11 +120,15 @@ def validate(predict, params, stats, val_source, n_batches: int, cfg, batch: int
 
 def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]:
     """(params, batch_stats) of the checkpoint folder `init` (a run or an exported one, e.g.
-    `rhaml_jax/checkpoints/amlnet_cpu`), to fine-tune from; it must hold the model `cfg`."""
+    `rhaml_jax/checkpoints/amlnet_cpu`), to fine-tune from; it must hold the model `cfg` up to
+    its name and input colours (`luma`, which changes no weight: a colour network can start a
+    luminance one)."""
     if not (Path(init) / "checkpoints").is_dir():
         raise RhamlError(f"--init {init}: not a checkpoint folder (no checkpoints/ inside)")
     net, params, stats = load_model(init)
-    if net.cfg != cfg:
+    same_kind = type(net.cfg) is type(cfg)
+    as_cfg = dataclasses.replace(net.cfg, name=cfg.name, **({"luma": cfg.luma} if hasattr(cfg, "luma") else {})) if same_kind else None
+    if as_cfg != cfg:
         raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r} ({config_to_dict(net.cfg)}), "
                          f"not the {cfg.name!r} being trained")
     return params, stats
