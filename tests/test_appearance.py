@@ -111,6 +111,27 @@ def test_heldout_settings_never_occur_in_training():
     assert any(np.any(lk.part_hsv[-2:, 1] > 0.5) for lk in train)
 
 
+def test_repaint_recolours_every_part_outside_the_heldout_band():
+    """repaint_prob = 1: no part keeps its own colour (hue within part_hue_shift_deg of its
+    own, saturation >= part_saturation_scale[0] of its own) more often than a random new colour
+    lands there; and repainting never gives a part the held-out colouring."""
+    base = data._appearance.rgb_to_hsv(GROUPS)
+    coloured = base[:, 1] > 0
+
+    def kept(cfg):
+        looks = [data.sample_look(cfg, 3, i, GROUPS) for i in range(1000)]
+        hsv = np.stack([lk.part_hsv[coloured] for lk in looks])
+        dh = np.abs((hsv[..., 0] - base[coloured, 0] + 180) % 360 - 180)
+        return np.mean((dh <= CFG.part_hue_shift_deg[1]) & (hsv[..., 1] >= CFG.part_saturation_scale[0] * base[coloured, 1] - 1e-9)), looks
+
+    k0, _ = kept(CFG)
+    k1, looks = kept(dataclasses.replace(CFG, repaint_prob=1.0))
+    assert k0 > 0.45 and k1 < 0.2, (k0, k1)  # 50 of 310 allowed hue degrees, times the saturation's chance
+    assert not any(np.any(_in_heldout_band(lk.part_hsv, HELD)) for lk in looks)
+    half = dataclasses.replace(CFG, repaint_prob=0.5)
+    assert _same(data.sample_look(half, 3, 5, GROUPS), data.sample_look(half, 3, 5, GROUPS))
+
+
 @pytest.mark.parametrize("field,value,msg", [
     ("ambient", (0.7, 0.1), "AppearanceConfig.ambient: range (0.7, 0.1) is inverted"),
     ("texture_kinds", (), "AppearanceConfig.texture_kinds: expected a non-empty list"),

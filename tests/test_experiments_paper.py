@@ -81,3 +81,25 @@ def test_figures(table):
 def test_signed_errors_wrap_psi():
     e = fig5_violin.signed_errors(np.array([[1.0, 2.0, 3.1]]), np.array([[0.9, 2.05, -3.1]]))
     np.testing.assert_allclose(e, [[10.0, -5.0, np.degrees(6.2 - 2 * np.pi)]], atol=1e-9)
+
+
+def test_stage_diagnostics(table, tmp_path):
+    """experiments/stage_diagnostics.py: AMLNet alone and the zoom stage on oracle crops, one
+    row per (network, data set), fractions in [0, 1], every frame with the robot in view."""
+    import stage_diagnostics
+
+    from rhaml_jax.amlnet import shipped_checkpoint
+
+    out, _ = table
+    ours = out.parents[1] / "ours"
+    res = tmp_path / "diag.json"
+    d = stage_diagnostics.main(["--amlnet", str(shipped_checkpoint("amlnet_cpu")), "--zoom", str(shipped_checkpoint("zoom_cpu")),
+                                "--data", str(ours / "circle"), str(ours / "sine"), "--frames", "4", "--out", str(res)])
+    assert json.loads(res.read_text()) == d
+    assert [r["data"] for r in d["amlnet_alone"]] == [str(ours / "circle"), str(ours / "sine")]
+    for r in d["amlnet_alone"]:
+        assert r["n"] == 4 and math.isfinite(r["median_bearing_deg"]) and r["median_range_ratio"] > 0
+        assert all(0 <= r[k] <= 1 for k in ("bearing_within_5deg", "range_within_12pct", "detected"))
+    for r in d["zoom_oracle"]:
+        assert r["n"] == 4 and 0 <= r["flips"] <= 1 and 0 <= r["median_dpsi_deg"] <= 180
+        assert r["dx_cm"] >= 0 and r["median_range_ratio"] > 0

@@ -61,6 +61,9 @@ class AppearanceConfig:
       part_recolour_prob: a part gets a new hue (any hue outside hue_exclude_deg), saturation in
         (0, 1) and value in part_value; otherwise it keeps its hue shifted by part_hue_shift_deg,
         its saturation scaled by part_saturation_scale;
+      repaint_prob: the whole robot repainted: every part grey or recoloured as above, none keeps
+        its own colour (the issue-18 control: a blue body or grey tyres moved the old networks
+        by metres); 0 in the v2 sets (which it leaves as they were: no draw at 0);
       dark_lift: every part's value v -> v + lift (1 - v) (dark parts rendered lighter);
       hue_exclude_deg, exclude_min_saturation: no part (and no robot-like distractor) with at
         least that saturation ever has a hue in this band (it is the held-out colouring's).
@@ -85,6 +88,7 @@ class AppearanceConfig:
 
     part_grey_prob: float = 0.15
     part_recolour_prob: float = 0.35
+    repaint_prob: float = 0.0
     part_hue_shift_deg: Range = (-25.0, 25.0)
     part_saturation_scale: Range = (0.3, 1.2)
     part_value: Range = (0.04, 1.0)
@@ -348,10 +352,10 @@ def _camera(rng, cfg: AppearanceConfig) -> dict:
         noise_seed=int(rng.integers(2**31)))
 
 
-def _part_hsv(rng, base_hsv: np.ndarray, cfg: AppearanceConfig) -> np.ndarray:
+def _part_hsv(rng, base_hsv: np.ndarray, cfg: AppearanceConfig, repaint: bool = False) -> np.ndarray:
     out = []
     for h, s, v in base_hsv:
-        mode = rng.random()
+        mode = rng.random() * ((cfg.part_grey_prob + cfg.part_recolour_prob) if repaint else 1.0)
         if mode < cfg.part_grey_prob:
             h, s, v = 0.0, 0.0, _u(rng, cfg.part_value)
         elif mode < cfg.part_grey_prob + cfg.part_recolour_prob:
@@ -367,7 +371,8 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
     """The v2 training look of image `index` of data set `seed`; base_colors: the model's
     colour groups (G, 3). A pure function of its arguments."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _STREAM_LOOK]))
-    part = _part_hsv(rng, rgb_to_hsv(base_colors), cfg)
+    repaint = cfg.repaint_prob > 0 and rng.random() < cfg.repaint_prob  # no draw at 0: older sets unchanged
+    part = _part_hsv(rng, rgb_to_hsv(base_colors), cfg, repaint)
     lighting = cfg.lighting[rng.integers(len(cfg.lighting))]
     az, el = rng.uniform(-np.pi, np.pi), _u(rng, cfg.sun_elevation_rad)
     flash = lighting == "sun+flash" and rng.random() < cfg.flash_prob
