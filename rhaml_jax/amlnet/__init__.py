@@ -6,7 +6,9 @@ Public API:
 - network: `build(cfg, key) -> Net` (graphdef split once; `net.apply(params, batch_stats,
   images)`, `net.train_apply(params, batch_stats, images, key) -> (out, new_batch_stats)`),
   `acn` / `acn_reference` (eqs. 1-2 as pure functions), `decode(out)`;
-- loss: `amlnet_loss` (eqs. 3-5, negatives masked out of L_p);
+- loss: `amlnet_loss` (eqs. 3-5, negatives masked out of L_p); the dense head's (config
+  head="heatmap") targets, loss and decoding in `rhaml_jax.amlnet.heatmap` (`decode` and the
+  training steps dispatch to it);
 - counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
 - training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
+from rhaml_jax.planar import wrap_angle
 
 __all__ = ["STRIDE", "CHANNELS", "net_intrinsics", "reference_pixels", "heatmap_loss", "decode_heatmap"]
 
@@ -121,10 +122,9 @@ def decode_heatmap(out) -> dict:
     flat = out.reshape(B, gh * gw, C)
     idx = jnp.argmax(flat[..., 0], axis=1)
     at = jnp.take_along_axis(flat, idx[:, None, None], axis=1)[:, 0]  # (B, 6)
-    jy, jx = idx // gw, idx % gw
+    jx = idx % gw
     u = STRIDE * (jx + at[:, 1]) - 0.5
     bearing = jnp.arctan2(-(u - K[0, 2]) / K[0, 0], 1.0)
     r = jnp.exp(at[:, 3])
-    psi = jnp.arctan2(jnp.sin(bearing + jnp.arctan2(at[:, 5], at[:, 4])), jnp.cos(bearing + jnp.arctan2(at[:, 5], at[:, 4])))
-    return {"o": jax.nn.sigmoid(at[:, 0]), "x": r * jnp.cos(bearing), "y": r * jnp.sin(bearing), "psi": psi,
-            "v": STRIDE * (jy + at[:, 2]) - 0.5}
+    psi = wrap_angle(bearing + jnp.arctan2(at[:, 5], at[:, 4]))
+    return {"o": jax.nn.sigmoid(at[:, 0]), "x": r * jnp.cos(bearing), "y": r * jnp.sin(bearing), "psi": psi}
