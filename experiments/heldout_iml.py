@@ -5,7 +5,7 @@ benchmark and on our own scenarios: the BENCHMARKS.md section "Held-out appearan
   python -m rhaml_jax.generate --out /work/data/ours/circle --scenario circle
   python -m rhaml_jax.generate --out /work/data/ours/sine --scenario sine
   python experiments/heldout_iml.py --heldout /work/data/heldout --ours /work/data/ours --out /work/data/heldout_results \
-      [--val /work/data/v2_train] [--evaluate-args="--amlnet CKPT --zoom CKPT"]
+      [--val /work/data/v2_train] [--repainted /work/data/val_repaint] [--evaluate-args="--amlnet CKPT --zoom CKPT"]
 
 For each data set it runs `python -m rhaml_jax.evaluate --data D --modules iml --zoom-mirror --json J`
 (the shipped checkpoints) and, from J, over the frames with the robot in view that were detected:
@@ -61,12 +61,16 @@ def main() -> None:
     p.add_argument("--ours", type=Path, default=Path("/work/data/ours"), help="folder holding our circle/ and sine/")
     p.add_argument("--out", type=Path, default=Path("/work/data/heldout_results"))
     p.add_argument("--val", type=Path, default=None, help="a BOP training set whose val split is also evaluated")
+    p.add_argument("--repainted", type=Path, default=None,
+                   help="folder of experiments/repainted_validation.py's scenes (blue_body/, grey_wheels/), also evaluated")
     p.add_argument("--evaluate-args", default="", help='extra evaluate flags as one string (e.g. "--amlnet CKPT --zoom CKPT")')
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     sets = {f"ours: {n}": a.ours / n for n in ("circle", "sine")}
     if a.val is not None:
         sets["ours: validation split"] = a.val
+    if a.repainted is not None:
+        sets |= {f"validation: {n.replace('_', ' ')}": a.repainted / n for n in ("blue_body", "grey_wheels")}
     sets |= {f"held-out: {n}": a.heldout / n for n in ("circle", "sine", "background", "random")}
     rows = {}
     for name, d in sets.items():
