@@ -23,7 +23,8 @@ MAX_MEDIAN_DY_M = 0.4
 MAX_MEDIAN_DPSI_DEG = 20.0
 
 
-@pytest.mark.parametrize("name,config", [("amlnet_cpu", "cpu"), ("zoom_cpu", "zoom_cpu")])
+@pytest.mark.parametrize("name,config", [("amlnet_cpu", "cpu"), ("zoom_cpu", "zoom_cpu"), ("heat_cpu", "cpu_heat"),
+                                         ("zoom_luma_cpu", "zoom_cpu_luma")])
 def test_shipped_checkpoint_size_and_config(name, config):
     path = shipped_checkpoint(name)
     size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
@@ -31,6 +32,9 @@ def test_shipped_checkpoint_size_and_config(name, config):
     net, params, _ = load_model(path)
     assert net.cfg == get_config(config)
     assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(params))
+    from rhaml_jax.amlnet.checkpoint import checkpoint_robot
+
+    assert checkpoint_robot(path)["name"] == "pioneer3dx"
 
 
 def test_shipped_checkpoint_localises_rendered_robots():
