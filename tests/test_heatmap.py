@@ -128,3 +128,14 @@ def test_heatmap_amlnet_in_iml_with_a_zoom_stage():
     est = localize_jit(model, params, images, DEFAULT_CAMERA.K)
     assert est.xypsi.shape == (2, 3) and np.all(np.isfinite(np.asarray(est.xypsi)))
     assert np.all((np.asarray(est.o) >= 0) & (np.asarray(est.o) <= 1))
+
+
+def test_init_starts_a_luma_network_from_a_colour_checkpoint_of_the_same_architecture():
+    from rhaml_jax.amlnet import shipped_checkpoint
+    from rhaml_jax.amlnet.trainer import initial_weights
+    from rhaml_jax.errors import RhamlError
+
+    params, _ = initial_weights(get_config("zoom_cpu_luma"), shipped_checkpoint("zoom_cpu"))
+    assert jax.tree.structure(params) == jax.tree.structure(build(get_config("zoom_cpu_luma"), abstract=True).params)
+    with pytest.raises(RhamlError, match="not the 'cpu_heat' being trained"):
+        initial_weights(get_config("cpu_heat"), shipped_checkpoint("zoom_cpu"))

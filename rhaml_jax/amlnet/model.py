@@ -4,9 +4,10 @@ whole final grid); FC neck (GELU); linear head, scaled by `scale_head`.
 
 Input: images (B, H, W, 3) float32 in [0, 1] (normalised inside with the ImageNet mean/std;
 with luma=True first replaced by their luminance in all three channels).
-Output (head="heatmap": the dense map (B, H/8, W/8, 6) of `amlnet.heatmap`): raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
+Output: raw head (B, 4) = (o logit, x, y, psi), or (B, 5) = (o logit, x, y, cos, sin) with
 angle_head = "cossin", or (B, 7) = (o logit, x, y, cos, sin, cos 2psi, sin 2psi) with
-angle_head = "axis"; `loss.decode` turns each into (o probability, x, y, psi).
+angle_head = "axis"; with head="heatmap" the dense map (B, H/8, W/8, 6) of `amlnet.heatmap`;
+`loss.decode` turns each into (o probability, x, y, psi).
 """
 
 from __future__ import annotations

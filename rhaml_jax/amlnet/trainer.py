@@ -10,10 +10,8 @@ float reassociation.
 
 from __future__ import annotations
 
-import dataclasses
-
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -126,9 +124,8 @@ def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]
     if not (Path(init) / "checkpoints").is_dir():
         raise RhamlError(f"--init {init}: not a checkpoint folder (no checkpoints/ inside)")
     net, params, stats = load_model(init)
-    same_kind = type(net.cfg) is type(cfg)
-    as_cfg = dataclasses.replace(net.cfg, name=cfg.name, **({"luma": cfg.luma} if hasattr(cfg, "luma") else {})) if same_kind else None
-    if as_cfg != cfg:
+    colours = {"luma": cfg.luma} if hasattr(cfg, "luma") else {}
+    if type(net.cfg) is not type(cfg) or replace(net.cfg, name=cfg.name, **colours) != cfg:
         raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r} ({config_to_dict(net.cfg)}), "
                          f"not the {cfg.name!r} being trained")
     return params, stats
