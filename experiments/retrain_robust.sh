@@ -5,7 +5,8 @@
 #   bash experiments/retrain_robust.sh DATA_ROOT RUNS_ROOT
 # 1. cpu_heat (heatmap head, luminance) from scratch and zoom_cpu_luma (from zoom_mix) on mix_train;
 # 2. a v3 set: v2 plus whole-robot repainting (repaint_prob 0.5); both fine-tuned on v3 + v2 + v1;
-# 3. exported to RUNS/export_robust/{amlnet,zoom}.
+# 3. exported to RUNS/export_robust/{amlnet,zoom}, shipped as rhaml_jax/checkpoints/heat_cpu and
+#    zoom_luma_cpu (cp -r RUNS/export_robust/amlnet rhaml_jax/checkpoints/heat_cpu, likewise the zoom).
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs}"
 PY="${PYTHON:-python}"
