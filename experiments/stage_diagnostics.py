@@ -18,10 +18,13 @@ Prints Markdown tables; writes OUT.json.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+import _paper  # noqa: E402
 
 
 def oracle_errors(zoom_dir: Path, root: Path, frames: int, batch: int = 50) -> dict:
@@ -58,6 +61,8 @@ def first_stage(amlnet_dir: Path, root: Path, frames: int, batch: int = 25) -> d
     from rhaml_jax.amlnet import load_model
     from rhaml_jax.data import load_rgb, read_bop
     from rhaml_jax.iml import IMLModel, IMLParams, localize_jit
+    from rhaml_jax.metrics import DETECTION_THRESHOLD
+    from rhaml_jax.planar import range_bearing, wrap_angle
 
     net, p, s = load_model(amlnet_dir)
     split = "test" if (root / "test").is_dir() else "val"
@@ -69,11 +74,12 @@ def first_stage(amlnet_dir: Path, root: Path, frames: int, batch: int = 25) -> d
         est.append(np.asarray(e.xypsi))
         o.append(np.asarray(e.o))
     est, o, gt = np.concatenate(est), np.concatenate(o), np.stack([f.xypsi for f in fr])
-    db = np.degrees(np.abs(np.arctan2(np.sin(b := np.arctan2(est[:, 1], est[:, 0]) - np.arctan2(gt[:, 1], gt[:, 0])), np.cos(b))))
-    rr = np.hypot(est[:, 0], est[:, 1]) / np.hypot(gt[:, 0], gt[:, 1])
+    (r_est, b_est), (r_gt, b_gt) = range_bearing(est[:, :2]), range_bearing(gt[:, :2])
+    db = np.degrees(np.abs(wrap_angle(b_est - b_gt)))
+    rr = r_est / r_gt
     return {"n": len(gt), "median_bearing_deg": float(np.median(db)), "bearing_within_5deg": float(np.mean(db <= 5)),
             "median_range_ratio": float(np.median(rr)), "range_within_12pct": float(np.mean(np.abs(np.log(rr)) <= np.log(1.12))),
-            "detected": float(np.mean(o >= 0.5))}
+            "detected": float(np.mean(o >= DETECTION_THRESHOLD))}
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -85,21 +91,32 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
     first = [{"amlnet": str(m), "data": str(d), **first_stage(m, d, a.frames)} for m in a.amlnet for d in a.data]
-    print("| AMLNet | data | median bearing error (deg) | within 5 deg | median est/true range | within 12 % | detected |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
-    for r in first:
-        print(f"| {r['amlnet']} | {r['data']} | {r['median_bearing_deg']:.2f} | {100 * r['bearing_within_5deg']:.0f} % | "
-              f"{r['median_range_ratio']:.3f} | {100 * r['range_within_12pct']:.0f} % | {100 * r['detected']:.0f} % |")
+    print(markdown(first, FIRST_COLUMNS))
     rows = [{"zoom": str(z), "data": str(d), **oracle_errors(z, d, a.frames)} for z in a.zoom for d in a.data]
-    print("| zoom stage | data | abs dx (cm) | abs dy (cm) | median abs dpsi (deg) | flips | median est/true range |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
-    for r in rows:
-        print(f"| {r['zoom']} | {r['data']} | {r['dx_cm']:.1f} | {r['dy_cm']:.1f} | {r['median_dpsi_deg']:.1f} | "
-              f"{100 * r['flips']:.0f} % | {r['median_range_ratio']:.3f} |")
+    print(markdown(rows, ZOOM_COLUMNS))
     a.out.parent.mkdir(parents=True, exist_ok=True)
     res = {"amlnet_alone": first, "zoom_oracle": rows}
-    a.out.write_text(json.dumps(res, indent=1))
+    _paper.write_json(a.out, res)
     return res
+
+
+pct = lambda v: f"{100 * v:.0f} %"  # noqa: E731
+# (header, key, format) of each table's columns
+FIRST_COLUMNS = (("AMLNet", "amlnet", str), ("data", "data", str),
+                 ("median bearing error (deg)", "median_bearing_deg", "{:.2f}".format), ("within 5 deg", "bearing_within_5deg", pct),
+                 ("median est/true range", "median_range_ratio", "{:.3f}".format), ("within 12 %", "range_within_12pct", pct),
+                 ("detected", "detected", pct))
+ZOOM_COLUMNS = (("zoom stage", "zoom", str), ("data", "data", str),
+                ("abs dx (cm)", "dx_cm", "{:.1f}".format), ("abs dy (cm)", "dy_cm", "{:.1f}".format),
+                ("median abs dpsi (deg)", "median_dpsi_deg", "{:.1f}".format), ("flips", "flips", pct),
+                ("median est/true range", "median_range_ratio", "{:.3f}".format))
+
+
+def markdown(rows: list[dict], columns) -> str:
+    """A Markdown table of `rows`, one column per (header, key, format)."""
+    lines = ["| " + " | ".join(c[0] for c in columns) + " |", "| " + " | ".join(["---"] * len(columns)) + " |"]
+    lines += ["| " + " | ".join(fmt(r[k]) for _, k, fmt in columns) + " |" for r in rows]
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

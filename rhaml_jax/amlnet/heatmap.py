@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
-from rhaml_jax.planar import wrap_angle
+from rhaml_jax.planar import range_bearing, wrap_angle
 
 __all__ = ["STRIDE", "CHANNELS", "net_intrinsics", "reference_pixels", "heatmap_loss", "decode_heatmap"]
 
@@ -65,14 +65,14 @@ def transform_head(raw):
 
 def _targets(pose, grid_hw, centre_z_m):
     """Continuous cell coordinates q (B, 2) of the reference point (clamped into the grid: a
-    robot cut by the image border peaks at the border), and the bearing (B,)."""
+    robot cut by the image border peaks at the border), and the range and bearing (B,) (x
+    clamped to 0.1 m as in `reference_pixels`)."""
     gh, gw = grid_hw
     K = jnp.asarray(net_intrinsics(grid_hw))
     uv = reference_pixels(pose, K, centre_z_m)
     q = (uv + 0.5) / STRIDE  # pixel centres at integers, cell j spans [j, j + 1)
     q = jnp.clip(q, 0.0, jnp.asarray([gw, gh], q.dtype) - 1e-3)
-    bearing = jnp.arctan2(pose[:, 1], jnp.maximum(pose[:, 0], 0.1))
-    return q, bearing
+    return (q, *range_bearing(pose[:, :2], min_x=0.1))
 
 
 def heatmap_loss(out, observed, pose, centre_z_m: float, w_psi: float = 3.0, w_p: float = 2.0):
@@ -81,7 +81,7 @@ def heatmap_loss(out, observed, pose, centre_z_m: float, w_psi: float = 3.0, w_p
     w_p L_p, L_p the offset, range and w_psi-weighted heading errors over the cells near the
     target (weighted by the target Gaussian)."""
     B, gh, gw, _ = out.shape
-    q, bearing = _targets(pose, (gh, gw), centre_z_m)
+    q, r, bearing = _targets(pose, (gh, gw), centre_z_m)
     jx, jy = jnp.arange(gw, dtype=out.dtype), jnp.arange(gh, dtype=out.dtype)
     cx, cy = jnp.floor(q[:, 0]), jnp.floor(q[:, 1])
     d2 = (jx[None, None, :] + 0.5 - q[:, 0, None, None]) ** 2 + (jy[None, :, None] + 0.5 - q[:, 1, None, None]) ** 2
@@ -103,8 +103,7 @@ def heatmap_loss(out, observed, pose, centre_z_m: float, w_psi: float = 3.0, w_p
     w = Y * (near_x & near_y)  # regression weights: the target cell and its 8 neighbours
     off_t = jnp.stack(jnp.broadcast_arrays(q[:, 0, None, None] - jx[None, None, :], q[:, 1, None, None] - jy[None, :, None]), -1)
     err_off = jnp.sum(jnp.abs(out[..., 1:3] - off_t), -1)
-    logr = jnp.log(jnp.maximum(jnp.hypot(pose[:, 0], pose[:, 1]), 0.1))
-    err_r = W_RANGE * jnp.abs(out[..., 3] - logr[:, None, None])
+    err_r = W_RANGE * jnp.abs(out[..., 3] - jnp.log(r)[:, None, None])
     rel = pose[:, 2] - bearing
     ang = (out[..., 4] - jnp.cos(rel)[:, None, None]) ** 2 + (out[..., 5] - jnp.sin(rel)[:, None, None]) ** 2
     wsum = jnp.maximum(jnp.sum(w), 1e-6)
