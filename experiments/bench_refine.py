@@ -4,8 +4,10 @@ BOP scenarios, from (a) ground truth + the paper's noise and (b) the shipped IML
   python experiments/bench_refine.py --data /work/data/circle /work/data/sine \
       --iml-json /work/data/iml_circle.json /work/data/iml_sine.json --stride 5 --json out.json
 
-Masks: --masks gt uses the scenes' ground-truth masks (BOP mask_visib): the oracle row, which
-separates the alignment's own error from a mask predictor's. Prints one JSON line per
+Masks: the scenes' ground-truth masks (BOP mask_visib): the oracle row, which separates the
+alignment's own error from a mask predictor's; with --segmenter CKPT also the segmenter's masks
+of the images (the deployable row; `python experiments/bench_refine.py ... --segmenter
+runs/segmenter_cpu`), with its mask IoU against the ground truth in the alignment's final crop. Prints one JSON line per
 (start, stage) with mean +- std |dx|, |dy| (cm), |dpsi| (deg), ATE, flips (|dpsi| > 90 deg),
 range bias (%) and ms per frame (median over frames, one frame at a time, compiled).
 """
@@ -23,7 +25,9 @@ import numpy as np
 import tyro
 
 from rhaml_jax import allocator, data, metrics, render
-from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, refine
+from rhaml_jax import crop as _crop
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_segmenter, observed_mask, refine
+from rhaml_jax.refine.alignment import align_to, crop_box
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,6 +46,8 @@ class Args:
     debias_stages: int = 2
     refiner: Path | None = None
     """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
+    segmenter: Path | None = None
+    """a segmenter checkpoint (`train --stage segmenter`): also run the alignment to its masks of the images"""
     oracle: bool = True
     """run the alignment to the ground-truth masks (the oracle row)"""
     json: Path | None = None
@@ -88,6 +94,36 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[
     return rows
 
 
+def aligned(mesh, cfg: AlignConfig, seg, frames, init):
+    """The alignment of every frame from `init` (F, 3), to its ground-truth mask (seg None) or to
+    the segmenter's mask of its image: (estimates (F, 3), ms per frame, flip confidences, mask
+    IoU of the segmenter in the final crop (empty for gt masks))."""
+    S = cfg.crop
+
+    def one(image, mask, i, K):
+        H, W = mask.shape
+        if seg is None:
+            return align(mesh, mask, K, i, cfg), jnp.float32(1.0)
+        target = lambda b: jax.image.resize(observed_mask(seg, image, b), (S, S), "bilinear")  # noqa: E731
+        r = align_to(mesh, target, K, i, W, H, cfg)
+        box = crop_box(mesh, K, r.xypsi, cfg)
+        pred, true = target(box) > 0.5, _crop.crop_image(mask[..., None], box, S, S)[..., 0] > 0.5
+        return r, jnp.sum(pred & true) / jnp.maximum(jnp.sum(pred | true), 1)
+
+    f = jax.jit(one)
+    est, ms, conf, iou = [], [], [], []
+    for j, fr in enumerate(frames):
+        args = (jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255, jnp.asarray(data.load_mask(fr.mask), jnp.float32),
+                jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
+        if j == 0:
+            jax.block_until_ready(f(*args))
+        t = time.perf_counter()
+        r, q = jax.block_until_ready(f(*args))
+        ms.append(1e3 * (time.perf_counter() - t))
+        est.append(np.asarray(r.xypsi)); conf.append(float(r.flip_confidence)); iou.append(float(q))
+    return np.stack(est), ms, conf, (iou if seg is not None else [])
+
+
 def main(a: Args) -> list[dict]:
     allocator.tune_allocator()
     frames, inits_iml = [], []
@@ -108,30 +144,26 @@ def main(a: Args) -> list[dict]:
     cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages)
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
-    for name in a.starts:
+    seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
+    for name in [n for n in a.starts if n in starts]:  # iml only with --iml-json
         init = starts[name]
-        K = jnp.asarray(frames[0].K, jnp.float32)
         if ref is not None:
             rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame)
-        if not a.oracle:
-            continue
-        f = jax.jit(lambda m, i, K: align(mesh, m, K, i, cfg))
-        jax.block_until_ready(f(jnp.asarray(data.load_mask(frames[0].mask), jnp.float32), jnp.asarray(init[0]), K))
-        est, ms, conf = [], [], []
-        for j, fr in enumerate(frames):
-            m = jnp.asarray(data.load_mask(fr.mask), jnp.float32)
-            t = time.perf_counter()
-            r = jax.block_until_ready(f(m, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32)))
-            ms.append(1e3 * (time.perf_counter() - t))
-            est.append(np.asarray(r.xypsi)); conf.append(float(r.flip_confidence))
-        est = np.stack(est)
-        per_frame.append({"start": name, "gt": gt.tolist(), "init": init.tolist(), "est": est.tolist(), "flip_confidence": conf})
-        for stage, e, t in (("start", init, None), ("alignment (gt masks)", est, ms)):
-            row = {"start": name, "stage": stage, "frames": len(gt), "stride": a.stride, **summary(e, gt, t)}
-            if t is not None:
-                row["median_flip_confidence"] = float(np.median(conf))
-            print(json.dumps(row), flush=True)
-            rows.append(row)
+        kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
+        for kind in kinds:
+            est, ms, conf, iou = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init)
+            per_frame.append({"start": name, "masks": kind, "gt": gt.tolist(), "init": init.tolist(), "est": est.tolist(),
+                              "flip_confidence": conf, "mask_iou": iou})
+            for stage, e, t in (("start", init, None), (f"alignment ({kind})", est, ms)):
+                if t is None and kind != kinds[0]:
+                    continue
+                row = {"start": name, "stage": stage, "frames": len(gt), "stride": a.stride, **summary(e, gt, t)}
+                if t is not None:
+                    row["median_flip_confidence"] = float(np.median(conf))
+                    if kind == "segmenter masks":
+                        row["median_mask_iou"] = float(np.median(iou))
+                print(json.dumps(row), flush=True)
+                rows.append(row)
     if a.json:
         a.json.write_text(json.dumps({"args": {k: str(v) for k, v in dataclasses.asdict(a).items()}, "rows": rows, "per_frame": per_frame}))
     return rows

@@ -4,6 +4,7 @@
       [--data DIR] [--steps N] [--batch B] [--resume] [--init CKPT]
   python -m rhaml_jax.train --stage zoom --config zoom_cpu --data DIR --out runs/zoom_cpu
   python -m rhaml_jax.train --stage refiner --config refiner_cpu --data DIR --out runs/refiner_cpu [--resume]
+  python -m rhaml_jax.train --stage segmenter --config segmenter_cpu --data DIR --out runs/segmenter_cpu [--resume]
 
 Without --data the training images are generated on the fly by `rhaml_jax.data`; with --data
 they are read from a BOP folder (also through `rhaml_jax.data`).  The run folder receives
@@ -30,10 +31,10 @@ __all__ = ["Args", "main", "amlnet_sources", "zoom_sources", "train_refiner"]
 
 @dataclass(frozen=True)
 class Args:
-    stage: Literal["amlnet", "zoom", "refiner"]
-    """which network: the AMLNet initial localiser, its zoom-in stage (needs --data) or the iterative refiner"""
+    stage: Literal["amlnet", "zoom", "refiner", "segmenter"]
+    """which network: the AMLNet initial localiser, its zoom-in stage (needs --data), the iterative refiner or the observed-mask segmenter of the silhouette alignment"""
     config: str
-    """model config name (e.g. paper, cpu, cpu_k0, frontnet, zoom_cpu: rhaml_jax.amlnet.config; refiner_cpu: rhaml_jax.refine.net)"""
+    """model config name (e.g. paper, cpu, cpu_k0, frontnet, zoom_cpu: rhaml_jax.amlnet.config; refiner_cpu: rhaml_jax.refine.net; segmenter_cpu: rhaml_jax.refine.segmenter)"""
     out: Path
     """run folder: checkpoints/, metrics.jsonl, metrics.png"""
     robot: str = "pioneer3dx"
@@ -96,25 +97,33 @@ def zoom_sources(args: Args, cfg):
 
 
 def train_refiner(args: Args) -> dict:
-    """--stage refiner: the learned refiner on a BOP set (crops around drawn initial poses,
-    rhaml_jax.refine.train); the checkpoint stores the config and the robot's name and extents."""
+    """--stage refiner / segmenter: a refinement-stage network on a BOP set (crops around drawn
+    initial poses, rhaml_jax.refine.train / .segmenter); the checkpoint stores the config and the
+    robot's fingerprint."""
     from rhaml_jax.data import load_bop_model
-    from rhaml_jax.refine.net import get_refiner_config
-    from rhaml_jax.refine.train import RefinerSource, refiner_task
     from rhaml_jax.training import fit
 
     if args.data is None or args.toy_data:
-        raise RhamlError("--stage refiner: needs --data (a BOP training set with a val split)")
-    cfg = get_refiner_config(args.config)
+        raise RhamlError(f"--stage {args.stage}: needs --data (a BOP training set with a val split)")
     tc = args.train
     if tc.steps < 1 or tc.batch < 1:
         raise RhamlError(f"--steps {tc.steps} / --batch {tc.batch}: must be positive")
     model = load_bop_model(args.data)
-    source = RefinerSource(args.data, "train", cfg, tc.batch, seed=tc.seed)
-    val = RefinerSource(args.data, "val", cfg, tc.batch, seed=tc.seed + 10_000)
-    task, shardings = refiner_task(cfg, tc, model, model, val)
+    if args.stage == "refiner":
+        from rhaml_jax.refine.net import get_refiner_config
+        from rhaml_jax.refine.train import RefinerSource as Source, refiner_task
+
+        cfg = get_refiner_config(args.config)
+        make_task = lambda val: refiner_task(cfg, tc, model, model, val)  # noqa: E731
+    else:
+        from rhaml_jax.refine.segmenter import SegmenterSource as Source, get_segmenter_config, segmenter_task
+
+        cfg = get_segmenter_config(args.config)
+        make_task = lambda val: segmenter_task(cfg, tc, model, val)  # noqa: E731
+    source = Source(args.data, "train", cfg, tc.batch, seed=tc.seed)
+    task, shardings = make_task(Source(args.data, "val", cfg, tc.batch, seed=tc.seed + 10_000))
     res = fit(task, tc, args.out, source, shardings=shardings, resume=args.resume,
-              data_label=f"refiner crops of BOP {args.data}", progress=args.progress)
+              data_label=f"{args.stage} crops of BOP {args.data}", progress=args.progress)
     print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()))
     return res
 
@@ -122,9 +131,9 @@ def train_refiner(args: Args) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
-    if args.stage == "refiner":
+    if args.stage in ("refiner", "segmenter"):
         if args.init is not None:
-            raise RhamlError("--init: fine-tuning is for --stage amlnet and zoom; the refiner starts from its own initialisation")
+            raise RhamlError(f"--init: fine-tuning is for --stage amlnet and zoom; the {args.stage} starts from its own initialisation")
         return train_refiner(args)
     from rhaml_jax.amlnet.config import get_config
     from rhaml_jax.amlnet.trainer import train_amlnet

@@ -2,10 +2,12 @@
 silhouette alignment through our differentiable renderer.
 
 Public API:
-- `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None) -> RefineResult`: the pipeline's
-  entry point (pure JAX, jit-able with cfg and the net static, vmappable over frames);
+- `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None, segmenter=None) -> RefineResult`:
+  the pipeline's entry point (pure JAX, jit-able with cfg and the nets static, vmappable over frames);
 - `load_refiner(ckpt_dir, model=None) -> Refiner` (a checkpoint of another robot is refused);
-- `align`, `align_crop`, `AlignConfig`, `AlignResult`: the alignment alone (rhaml_jax.refine.alignment);
+- `load_segmenter(ckpt_dir, model=None) -> Segmenter`, `observed_mask`: the robot's mask in a crop
+  of the image, the alignment's target (rhaml_jax.refine.segmenter);
+- `align`, `align_to`, `align_crop`, `AlignConfig`, `AlignResult`: the alignment alone (rhaml_jax.refine.alignment);
 - `RefinerConfig`, `get_refiner_config`: the learned refiner's configs (rhaml_jax.refine.net).
 
 Camera: the observer's camera sits at (0, 0, h) in its robot frame and looks along +x with no
@@ -27,11 +29,13 @@ import jaxlie
 from rhaml_jax import crop as _crop
 from rhaml_jax import frames, render
 from rhaml_jax.camera import T_cam_robot
-from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, check_init
+from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, align_to, check_init
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
+from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, load_segmenter, observed_mask
 
 __all__ = ["load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
-           "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner"]
+           "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
+           "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -77,14 +81,15 @@ def _corners(mesh):
     return lo + sel * (hi - lo)
 
 
-def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None
-           ) -> RefineResult:
+def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None,
+           segmenter: Segmenter | None = None) -> RefineResult:
     """Refines the planar estimate `init_xypsi` (3,) of the robot seen in `image` (H, W, 3)
     float32 in [0, 1] through intrinsics K (3, 3).
 
-    With a refiner: n_iter learned iterations (re-rendering at each new pose), then (cfg.align)
-    the silhouette alignment to the refiner's predicted mask. Without one (None): the alignment
-    alone, to the observed mask `mask` (H, W) in [0, 1] (required). A declined start (behind the
+    With a refiner: n_iter learned iterations (re-rendering at each new pose). Then the silhouette
+    alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
+    image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
+    else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
     camera, projecting outside the image, non-finite) returns the initial pose, never NaN.
     Differentiable wrt init_xypsi and the refiner's params (the alignment's increments are
     straight-through, see rhaml_jax.refine.alignment)."""
@@ -98,7 +103,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     image = jnp.asarray(image, jnp.float32)
     Hh, Ww = image.shape[:2]
     h = cfg.camera_height_m
-    a = cfg.align if cfg.align is not None or refiner is not None else AlignConfig()
+    a = cfg.align if cfg.align is not None or (refiner is not None and segmenter is None) else AlignConfig()
     acfg = None if a is None else dataclasses.replace(a, camera_height_m=h)
     declined = check_init(mesh, K, init, Ww, Hh, acfg or AlignConfig(camera_height_m=h))
     safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
@@ -126,19 +131,23 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         T_obs = T_back @ T
         xyp = frames.xypsi_from_se3(T_obs)
         roll_pitch = frames.roll_pitch_yaw(T_obs)[:2]
-        if acfg is not None:  # the mask head at the final pose, in the alignment's crop
+        if acfg is not None and segmenter is None:  # the mask head at the final pose, in the alignment's crop
             box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
             obs = _crop.crop_image(image, box, rc.crop, rc.crop)
             T1 = _T_cam(xyp, h)
             x = render_input(mesh, rc, obs[None], jaxlie.SE3(T1.wxyz_xyz[None]), K, box)
             logits = N.apply(rc, refiner.params, x).mask_logits[0]
             target = jax.image.resize(jax.nn.sigmoid(logits), (acfg.crop, acfg.crop), "bilinear")
-    elif mask is None:
-        raise RhamlError("refine: without a refiner, pass the observed mask (mask=...) for the alignment")
+    elif mask is None and segmenter is None:
+        raise RhamlError("refine: without a refiner, pass the observed mask (mask=...) or a segmenter for the alignment")
     score = jnp.float32(0.0)
     conf = jnp.float32(0.0)
     if acfg is not None:
-        if target is None:
+        if segmenter is not None:
+            S = acfg.crop
+            r = align_to(mesh, lambda b: jax.image.resize(observed_mask(segmenter, image, b), (S, S), "bilinear"), K, xyp,
+                         Ww, Hh, acfg)
+        elif target is None:
             r = align(mesh, mask, K, xyp, acfg)
         else:
             r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
@@ -156,56 +165,18 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
 def load_refiner(ckpt_dir: str | Path, model=None) -> Refiner:
     """The refiner in an Orbax run folder (rebuilt from its stored config). With `model` (a
     RobotModel), a checkpoint trained for a robot of other extents is refused (RhamlError)."""
-    import numpy as np
-
-    from rhaml_jax.amlnet.checkpoint import Checkpoints
-    from rhaml_jax.errors import RhamlError
     from rhaml_jax.refine import net as N
-    from rhaml_jax.refine.train import check_robot
+    from rhaml_jax.refine._checkpoint import load_params
 
-    ck = Checkpoints(ckpt_dir, read_only=True)
-    try:
-        step = ck.latest_step()
-        if step is None:
-            raise RhamlError(f"{ckpt_dir}: no checkpoint saved yet")
-        meta = ck.meta(step)
-        if meta.get("kind") != "refiner":
-            raise RhamlError(f"{ckpt_dir}: not a refiner checkpoint (it holds {meta.get('model_config', {}).get('name')!r})")
-        if model is not None:
-            check_robot(meta, model, str(ckpt_dir))
-        cfg = N.config_from_dict(meta["model_config"])
-        like = {"params": N.init_params(cfg, jax.random.key(0)), "batch_stats": {}}
-        if not meta.get("weights_only", False):
-            from rhaml_jax.amlnet.steps import make_optimizer
-
-            clip = meta.get("train_config", {}).get("clip")
-            like["opt_state"] = jax.eval_shape(make_optimizer(1e-3, 2, clip=clip).init, like["params"])
-        state = ck.restore(step, like)
-    finally:
-        ck.close()
-    return Refiner(jax.tree.map(lambda a: jnp.asarray(np.asarray(a)), state["params"]), cfg)
+    return Refiner(*load_params(ckpt_dir, "refiner", model, N.config_from_dict, N.init_params))
 
 
 def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
     """Writes the latest weights of a refiner run (no optimizer state) as a checkpoint folder
     that `load_refiner` reads; returns `out_dir`."""
-    import numpy as np
+    from rhaml_jax.refine._checkpoint import export_params
 
-    from rhaml_jax.amlnet.checkpoint import Checkpoints
-
-    ref = load_refiner(run_dir)
-    src = Checkpoints(run_dir, read_only=True)
-    try:
-        step = src.latest_step()
-        meta = {**src.meta(step), "weights_only": True, "exported_from": str(run_dir)}
-    finally:
-        src.close()
-    dst = Checkpoints(out_dir, keep=1)
-    try:
-        dst.save(step, {"params": jax.tree.map(np.asarray, ref.params), "batch_stats": {}}, meta)
-    finally:
-        dst.close()
-    return Path(out_dir)
+    return export_params(run_dir, out_dir, load_refiner(run_dir).params)
 
 
 def shipped_refiner(model=None) -> Refiner:

@@ -46,7 +46,7 @@ from rhaml_jax import crop as _crop
 from rhaml_jax import render
 from rhaml_jax.camera import T_cam_robot
 
-__all__ = ["AlignConfig", "AlignResult", "align", "align_crop", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
+__all__ = ["AlignConfig", "AlignResult", "align", "align_to", "align_crop", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
            "xypsi_from_params", "check_init"]
 
 
@@ -260,24 +260,31 @@ def align(mesh, mask, K, init_xypsi, cfg: AlignConfig = AlignConfig()) -> AlignR
     intrinsics K (3, 3)) from the planar estimate `init_xypsi` (3,). `mesh`: a render.Mesh.
 
     Pure JAX (jit with cfg static; vmap over mask and init_xypsi for many frames)."""
-    mesh = render.as_mesh(mesh)
     mask = jnp.asarray(mask, jnp.float32)
+    Hh, Ww = mask.shape
+    return align_to(mesh, lambda box: _crop.crop_image(mask[..., None], box, cfg.crop, cfg.crop)[..., 0], K, init_xypsi,
+                    Ww, Hh, cfg)
+
+
+def align_to(mesh, target_in, K, init_xypsi, width: int, height: int, cfg: AlignConfig = AlignConfig()) -> AlignResult:
+    """`align` given `target_in`: box (4,) -> the observed mask (S, S) in [0, 1] in that box of the
+    width x height image (a cropped mask, or a segmenter's output: `refine.segmenter`). First the
+    coarse pass (position only, a crop `coarse_margin` wide), then the hypotheses in the crop at
+    `margin` around its result."""
+    mesh = render.as_mesh(mesh)
     K = jnp.asarray(K, jnp.float32)
     init = jnp.asarray(init_xypsi, jnp.float32)
-    Hh, Ww = mask.shape
-    declined = check_init(mesh, K, init, Ww, Hh, cfg)
+    declined = check_init(mesh, K, init, width, height, cfg)
     safe = jnp.where(declined, jnp.array([3.0, 0.0, 0.0], jnp.float32), init)  # guard: no NaN downstream
     start = init
     if cfg.coarse_stages:
         coarse = dataclasses.replace(cfg, margin=cfg.coarse_margin, stages=cfg.coarse_stages, flip=False, mirror=False,
                                      perturbed=0, debias_stages=0, coarse_stages=())
         cbox = jax.lax.stop_gradient(crop_box(mesh, K, safe, coarse))
-        ctarget = _crop.crop_image(mask[..., None], cbox, cfg.crop, cfg.crop)[..., 0]
-        start = align_crop(mesh, ctarget, cbox, K, init, Ww, Hh, coarse).xypsi
+        start = align_crop(mesh, target_in(cbox), cbox, K, init, width, height, coarse).xypsi
         safe = jnp.where(declined, safe, start)
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
-    target = _crop.crop_image(mask[..., None], box, cfg.crop, cfg.crop)[..., 0]  # (S, S)
-    return align_crop(mesh, target, box, K, start, Ww, Hh, cfg)
+    return align_crop(mesh, target_in(box), box, K, start, width, height, cfg)
 
 
 def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: AlignConfig = AlignConfig()) -> AlignResult:

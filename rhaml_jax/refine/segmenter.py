@@ -1,0 +1,290 @@
+"""The observed-mask network: a small U-Net that segments the robot in a crop of the camera
+image, the target the silhouette alignment matches our render to.
+
+Why its own network: the learned refiner's mask head sees the render at the current pose beside
+the image, so its mask leans towards the hypothesis it should judge, and at 16 x 16 it is too
+coarse to fix the range (BENCHMARKS.md, "Refinement"). This one sees only the observed crop,
+at the alignment's resolution, in luminance by default (a repainted robot has the same
+luminance edges more often than the same hues). It decides between the alignment's heading
+hypotheses through the robot's outline (the Pioneer's wheels sit 4 cm ahead of its body's
+centre, its caster at the back), which repainting does not change.
+
+Crop: `crop.object_box` of the model at an estimate, times a margin; trained with margins drawn
+from `SegmenterConfig.margin_range` around initial poses drawn as `refine.train.initial_pose`
+(the paper's noise or our IML's errors, flips included), so the same network serves the
+alignment's wide coarse pass and its 1.4x fine pass.
+
+Pure functions over a params pytree: `init_params(cfg, key)`, `apply(cfg, params, crop)`; the
+`Segmenter` pytree (params + static cfg) passes through jit / vmap like `refine.Refiner`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import crop as _crop
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.refine.net import _conv, _conv_init, json_safe, mask_loss
+
+__all__ = ["SegmenterConfig", "SEGMENTER_CONFIGS", "get_segmenter_config", "Segmenter", "init_params", "apply",
+           "observed_mask", "segmenter_loss", "SegmenterBatch", "SegmenterSource", "segmenter_task", "load_segmenter",
+           "export_segmenter"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SegmenterConfig:
+    name: str = "segmenter_cpu"
+    crop: int = 64
+    """input and output side (px): the alignment's crop (`AlignConfig.crop`)"""
+    widths: tuple[int, ...] = (24, 48, 96)
+    """channels of the stride-2 encoder stages; the decoder mirrors them with skip connections"""
+    stem: int = 16
+    """channels of the full-resolution stem (kept as the last skip: edges at pixel precision)"""
+    luma: bool = True
+    """input BT.601 luminance (one channel) instead of RGB"""
+    margin_range: tuple[float, float] = (1.3, 2.6)
+    """training crop margins (the alignment uses 1.4 and, in its coarse pass, 2.5)"""
+    w_dice: float = 0.5
+    """weight of the soft-Dice term beside the per-pixel cross-entropy (small robots: few pixels)"""
+
+
+SEGMENTER_CONFIGS = {"segmenter_cpu": SegmenterConfig(),
+                     "segmenter_micro": SegmenterConfig(name="segmenter_micro", crop=32, widths=(8, 16), stem=8)}
+
+
+def get_segmenter_config(name: str) -> SegmenterConfig:
+    if name not in SEGMENTER_CONFIGS:
+        raise RhamlError(f"--config {name!r}: not a segmenter config (known: {', '.join(SEGMENTER_CONFIGS)})")
+    return SEGMENTER_CONFIGS[name]
+
+
+def config_to_dict(cfg: SegmenterConfig) -> dict:
+    return json_safe(dataclasses.asdict(cfg))
+
+
+def config_from_dict(d: dict) -> SegmenterConfig:
+    fields = {f.name for f in dataclasses.fields(SegmenterConfig)}
+    return SegmenterConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+
+
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
+@dataclasses.dataclass(frozen=True)
+class Segmenter:
+    """A trained segmenter: params (pytree leaves) and its static config (pytree metadata)."""
+
+    params: dict
+    cfg: SegmenterConfig
+
+
+# ------------------------------------------------------------------------------ the network
+
+
+def _in_channels(cfg: SegmenterConfig) -> int:
+    return 1 if cfg.luma else 3
+
+
+def init_params(cfg: SegmenterConfig, key) -> dict:
+    n = len(cfg.widths)
+    keys = iter(jax.random.split(key, 2 * n + 4))
+    stem = [_conv_init(next(keys), 3, _in_channels(cfg), cfg.stem)]
+    enc, cin = [], cfg.stem
+    for c in cfg.widths:
+        enc.append(_conv_init(next(keys), 3, cin, c))
+        cin = c
+    ctx = _conv_init(next(keys), 3, cin, cin)
+    dec, skips = [], [cfg.stem, *cfg.widths[:-1]][::-1]
+    for s in skips:  # upsample, concatenate the skip, conv to the skip's width
+        dec.append(_conv_init(next(keys), 3, cin + s, s))
+        cin = s
+    out = {"w": jnp.zeros((1, 1, cin, 1), jnp.float32), "b": jnp.zeros((1,), jnp.float32)}
+    return {"stem": stem, "enc": enc, "ctx": ctx, "dec": dec, "out": out}
+
+
+def _prepare(cfg: SegmenterConfig, crop):
+    """(B, S, S, 3) RGB in [0, 1] -> the network's input in [-1, 1]."""
+    if cfg.luma:
+        crop = crop @ jnp.asarray([0.299, 0.587, 0.114], crop.dtype)[:, None]
+    return crop * 2.0 - 1.0
+
+
+def apply(cfg: SegmenterConfig, params: dict, crop):
+    """crop (B, S, S, 3) RGB in [0, 1] -> mask logits (B, S, S)."""
+    h = jax.nn.gelu(_conv(_prepare(cfg, crop), params["stem"][0], 1))
+    skips = [h]
+    for p in params["enc"]:
+        h = jax.nn.gelu(_conv(h, p, 2))
+        skips.append(h)
+    skips.pop()  # the deepest stage is the decoder's input, not a skip
+    h = jax.nn.gelu(_conv(h, params["ctx"], 1))
+    for p, s in zip(params["dec"], skips[::-1]):
+        B, H, W, C = s.shape
+        h = jax.image.resize(h, (B, H, W, h.shape[-1]), "bilinear")
+        h = jax.nn.gelu(_conv(jnp.concatenate([h, s], -1), p, 1))
+    return _conv(h, params["out"], 1)[..., 0]
+
+
+def observed_mask(seg: Segmenter, image, box):
+    """The robot's mask in [0, 1] (S, S) in `box` (4,) of `image` (H, W, 3) in [0, 1] (jit-able)."""
+    S = seg.cfg.crop
+    crop = _crop.crop_image(jnp.asarray(image, jnp.float32), box, S, S)
+    return jax.nn.sigmoid(apply(seg.cfg, seg.params, crop[None])[0])
+
+
+def dice_loss(logits, target):
+    """(B,) 1 - soft Dice of sigmoid(logits) against target (B, S, S); +1 guards an empty pair."""
+    p = jax.nn.sigmoid(logits)
+    inter = jnp.sum(p * target, (-2, -1))
+    return 1 - (2 * inter + 1) / (jnp.sum(p, (-2, -1)) + jnp.sum(target, (-2, -1)) + 1)
+
+
+def segmenter_loss(cfg: SegmenterConfig, params, crop, target):
+    logits = apply(cfg, params, crop)
+    ce = jnp.mean(mask_loss(logits, target))
+    dice = jnp.mean(dice_loss(logits, target))
+    iou = jnp.mean(_iou(logits > 0, target > 0.5))
+    loss = ce + cfg.w_dice * dice
+    return loss, {"loss": loss, "loss_ce": ce, "loss_dice": dice, "iou": iou}
+
+
+def _iou(a, b):
+    inter = jnp.sum(a & b, (-2, -1))
+    union = jnp.sum(a | b, (-2, -1))
+    return jnp.where(union > 0, inter / jnp.maximum(union, 1), 1.0)  # guard: both empty is a perfect match
+
+
+# ------------------------------------------------------------------------------ training data
+
+
+class SegmenterBatch(NamedTuple):
+    crop: np.ndarray  # (B, S, S, 3) float32 [0, 1] observed crop
+    mask: np.ndarray  # (B, S, S) float32 [0, 1] visible mask, cropped (area-averaged) by the same box
+
+
+class SegmenterSource:
+    """batch(step) of B crops number step * B ... (step + 1) * B - 1 of a BOP set's frames with the
+    robot in view: a pure function of (seed, step); decoded images kept in memory."""
+
+    def __init__(self, root: Path, split: str, cfg: SegmenterConfig, batch: int, seed: int = 0, limit: int | None = None):
+        from rhaml_jax.data import ImageCache, load_bop_model, read_bop
+        from rhaml_jax.refine.train import _corners
+
+        self.frames = [f for f in read_bop(root, split) if f.observed][:limit]
+        if not self.frames:
+            raise RhamlError(f"{root}: split {split!r} has no image with the robot in view")
+        self.model = load_bop_model(root)
+        self.corners = _corners(self.model.vertices)
+        self.cfg, self.batch, self.seed = cfg, batch, seed
+        self._cache = ImageCache(6 << 30)
+
+    def _image(self, i):
+        from rhaml_jax.data import load_mask, load_rgb
+
+        f = self.frames[i]
+        both = self._cache.get(i, lambda: np.concatenate([load_rgb(f.rgb), (load_mask(f.mask)[..., None] * 255).astype(np.uint8)], -1))
+        return both[..., :3], both[..., 3]
+
+    def example(self, index: int):
+        from rhaml_jax.refine.train import initial_pose
+
+        i = index % len(self.frames)
+        f = self.frames[i]
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, index]))
+        init = initial_pose(f.xypsi, rng)
+        margin = rng.uniform(*self.cfg.margin_range)
+        c, s = np.cos(init[2]), np.sin(init[2])
+        T_obs = np.eye(4)
+        T_obs[:2, :2] = [[c, -s], [s, c]]
+        T_obs[:2, 3] = init[:2]
+        T_init = f.T_w2c @ T_obs
+        pc = self.corners @ T_init[:3, :3].T + T_init[:3, 3]
+        box = np.asarray(_crop.object_box(f.K, pc, margin=margin), np.float64)
+        rgb, mask = self._image(i)
+        S = self.cfg.crop
+        obs = _crop.crop_image_host(rgb, box, S, S).astype(np.float32) / 255
+        m = _crop.crop_image_host(np.repeat(mask[..., None], 3, -1), box, S, S)[..., 0].astype(np.float32) / 255
+        return obs, m
+
+    def __call__(self, step: int) -> SegmenterBatch:
+        ex = [self.example(step * self.batch + j) for j in range(self.batch)]
+        return SegmenterBatch(np.stack([e[0] for e in ex]), np.stack([e[1] for e in ex]))
+
+
+def check_segmenter_batch(cfg: SegmenterConfig, b, size: int, where: str) -> None:
+    S = cfg.crop
+    if not isinstance(b, tuple) or len(b) != 2:
+        raise RhamlError(f"{where}: expected a SegmenterBatch, got {type(b).__name__}")
+    for name, shape, a in zip(("crop", "mask"), ((size, S, S, 3), (size, S, S)), b):
+        if np.shape(a) != shape:
+            raise RhamlError(f"{where}.{name}: expected shape {shape}, got {np.shape(a)}")
+
+
+def segmenter_task(cfg: SegmenterConfig, tc, model, val_source=None, num_devices=None):
+    """(the `rhaml_jax.training.Task` of the segmenter, its shardings); `model`: the RobotModel
+    whose fingerprint the checkpoints store."""
+    from rhaml_jax.amlnet.steps import make_optimizer, make_schedule
+    from rhaml_jax.refine.train import check_robot
+    from rhaml_jax.robots import fingerprint
+    from rhaml_jax.training import Task, devices, mesh_shardings
+
+    devs = devices(num_devices)
+    if tc.batch % len(devs):
+        raise RhamlError(f"--batch {tc.batch}: must be a multiple of the {len(devs)} devices")
+    rep, bat = mesh_shardings(devs)
+    tx = make_optimizer(tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip)
+
+    def grad_step(params, stats, crop, target, key):
+        (loss, parts), grads = jax.value_and_grad(lambda p: segmenter_loss(cfg, p, crop, target), has_aux=True)(params)
+        return loss, parts, stats, grads
+
+    def update(params, opt_state, grads):
+        import optax
+
+        upd, opt_state = tx.update(grads, opt_state, params)
+        return optax.apply_updates(params, upd), opt_state
+
+    # grad and update jitted apart: fused, XLA's CPU backend ran such steps several times slower (DESIGN.md section 8)
+    gs = jax.jit(grad_step, in_shardings=(rep, rep, bat, bat, rep), out_shardings=rep)
+    up = jax.jit(update, donate_argnums=(0, 1), in_shardings=(rep, rep, rep), out_shardings=rep)
+    ev = jax.jit(lambda params, crop, target: segmenter_loss(cfg, params, crop, target)[1])
+
+    def validate(params, stats, put):
+        rows = [ev(params, *(put(x) for x in val_source(i))) for i in range(tc.val_batches)]
+        return {k: float(np.mean([float(r[k]) for r in rows])) for k in rows[0]}
+
+    meta = {"model_config": config_to_dict(cfg), "kind": "segmenter", "robot": fingerprint(model).to_dict()}
+
+    def check_resume(stored, where):
+        if stored.get("kind") != "segmenter" or config_from_dict(stored["model_config"]) != cfg:
+            raise RhamlError(f"{where}: checkpoint holds another model ({stored.get('model_config', {}).get('name')!r}), not {cfg.name!r}")
+        check_robot(stored, model, where)
+
+    task = Task(name=cfg.name, params=init_params(cfg, jax.random.key(tc.seed)), batch_stats={}, opt_init=tx.init,
+                grad_step=gs, update=up, schedule=make_schedule(tc.lr, tc.steps, tc.warmup), meta=meta,
+                check_resume=check_resume, check_batch=lambda b, where: check_segmenter_batch(cfg, b, tc.batch, where),
+                validate=None if val_source is None else validate)
+    return task, (rep, bat)
+
+
+# ------------------------------------------------------------------------------ checkpoints
+
+
+def load_segmenter(ckpt_dir: str | Path, model=None) -> Segmenter:
+    """The segmenter in an Orbax run folder; with `model` (a RobotModel) a checkpoint made for
+    another robot is refused (RhamlError)."""
+    from rhaml_jax.refine._checkpoint import load_params
+
+    return Segmenter(*load_params(ckpt_dir, "segmenter", model, config_from_dict, init_params))
+
+
+def export_segmenter(run_dir: str | Path, out_dir: str | Path) -> Path:
+    """Writes the latest weights of a segmenter run (no optimizer state) as a checkpoint folder."""
+    from rhaml_jax.refine._checkpoint import export_params
+
+    return export_params(run_dir, out_dir, load_segmenter(run_dir).params)
