@@ -26,7 +26,8 @@ import tyro
 
 from rhaml_jax import allocator, data, metrics, render
 from rhaml_jax import crop as _crop
-from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_segmenter, observed_mask, refine
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_segmenter, refine
+from rhaml_jax.refine.segmenter import alignment_target
 from rhaml_jax.refine.alignment import align_to, crop_box
 
 
@@ -35,7 +36,8 @@ class Args:
     data: tuple[Path, ...]
     """BOP scenario folders"""
     iml_json: tuple[Path, ...] = ()
-    """`evaluate --json` outputs (one per --data, same order) for start (b)"""
+    """`evaluate --json` outputs (one per --data, same order) for start (b); then only the frames
+    the IML detected are used (for both starts), as `evaluate` scores them"""
     stride: int = 1
     """every stride-th frame (the alignment costs about a second per frame on this CPU)"""
     seed: int = 0
@@ -44,6 +46,14 @@ class Args:
     """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates"""
     crop: int = 64
     debias_stages: int = 2
+    coarse_margin: float = AlignConfig.coarse_margin
+    """`AlignConfig.coarse_margin`: the width of the coarse position pass's crop"""
+    max_score: float | None = None
+    """`AlignConfig.max_score`: keep the start where the aligned silhouette explains the mask worse than this"""
+    mask_threshold: float = RefineConfig.mask_threshold
+    """the segmenter's mask is thresholded here (`RefineConfig.mask_threshold`)"""
+    split: str | None = None
+    """only this BOP split (e.g. val of a training set: where thresholds are chosen)"""
     refiner: Path | None = None
     """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
     segmenter: Path | None = None
@@ -94,7 +104,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[
     return rows
 
 
-def aligned(mesh, cfg: AlignConfig, seg, frames, init):
+def aligned(mesh, cfg: AlignConfig, seg, frames, init, threshold: float = RefineConfig.mask_threshold):
     """The alignment of every frame from `init` (F, 3), to its ground-truth mask (seg None) or to
     the segmenter's mask of its image: (estimates (F, 3), ms per frame, flip confidences, mask
     IoU of the segmenter in the final crop (empty for gt masks))."""
@@ -104,14 +114,14 @@ def aligned(mesh, cfg: AlignConfig, seg, frames, init):
         H, W = mask.shape
         if seg is None:
             return align(mesh, mask, K, i, cfg), jnp.float32(1.0)
-        target = lambda b: jax.image.resize(observed_mask(seg, image, b), (S, S), "bilinear")  # noqa: E731
+        target = lambda b: alignment_target(seg, image, b, S, threshold)  # noqa: E731
         r = align_to(mesh, target, K, i, W, H, cfg)
         box = crop_box(mesh, K, r.xypsi, cfg)
         pred, true = target(box) > 0.5, _crop.crop_image(mask[..., None], box, S, S)[..., 0] > 0.5
         return r, jnp.sum(pred & true) / jnp.maximum(jnp.sum(pred | true), 1)
 
     f = jax.jit(one)
-    est, ms, conf, iou = [], [], [], []
+    est, ms, conf, iou, score, acc = [], [], [], [], [], []
     for j, fr in enumerate(frames):
         args = (jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255, jnp.asarray(data.load_mask(fr.mask), jnp.float32),
                 jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
@@ -121,16 +131,18 @@ def aligned(mesh, cfg: AlignConfig, seg, frames, init):
         r, q = jax.block_until_ready(f(*args))
         ms.append(1e3 * (time.perf_counter() - t))
         est.append(np.asarray(r.xypsi)); conf.append(float(r.flip_confidence)); iou.append(float(q))
-    return np.stack(est), ms, conf, (iou if seg is not None else [])
+        score.append(float(r.score)); acc.append(bool(r.accepted))
+    return np.stack(est), ms, conf, (iou if seg is not None else []), score, acc
 
 
 def main(a: Args) -> list[dict]:
     allocator.tune_allocator()
     frames, inits_iml = [], []
     for i, root in enumerate(a.data):
-        fr = [f for f in data.read_bop(root) if f.observed]
-        if a.iml_json:
+        fr = [f for f in data.read_bop(root, a.split) if f.observed]
+        if a.iml_json:  # the frames the IML detected (est is None for the others), as evaluate scores them
             est = {(r["scene_id"], r["im_id"]): r["est"] for r in json.loads(Path(a.iml_json[i]).read_text())["frames"]}
+            fr = [f for f in fr if est[(f.scene_id, f.im_id)] is not None]
             inits_iml += [est[(f.scene_id, f.im_id)] for f in fr][:: a.stride]
         frames += fr[:: a.stride]
     gt = np.stack([f.xypsi for f in frames]).astype(np.float32)
@@ -141,7 +153,7 @@ def main(a: Args) -> list[dict]:
     if inits_iml:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
-    cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages)
+    cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin)
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
@@ -151,15 +163,17 @@ def main(a: Args) -> list[dict]:
             rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame)
         kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
         for kind in kinds:
-            est, ms, conf, iou = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init)
+            est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init,
+                                                     a.mask_threshold)
             per_frame.append({"start": name, "masks": kind, "gt": gt.tolist(), "init": init.tolist(), "est": est.tolist(),
-                              "flip_confidence": conf, "mask_iou": iou})
+                              "flip_confidence": conf, "mask_iou": iou, "score": score, "accepted": acc})
             for stage, e, t in (("start", init, None), (f"alignment ({kind})", est, ms)):
                 if t is None and kind != kinds[0]:
                     continue
                 row = {"start": name, "stage": stage, "frames": len(gt), "stride": a.stride, **summary(e, gt, t)}
                 if t is not None:
                     row["median_flip_confidence"] = float(np.median(conf))
+                    row["accepted"] = int(np.sum(acc))
                     if kind == "segmenter masks":
                         row["median_mask_iou"] = float(np.median(iou))
                 print(json.dumps(row), flush=True)

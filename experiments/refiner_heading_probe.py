@@ -28,7 +28,7 @@ def main(argv=None):
     from rhaml_jax.planar import wrap_angle
 
     frames = [f for f in read_bop(a.data) if f.observed][:: a.stride]
-    cfg, (refiner, mesh) = refine.load_stage(a.refiner, a.data)
+    cfg, (refiner, mesh, _) = refine.load_stage(a.refiner, a.data)
     once = jax.jit(lambda im, K, x: refine.refine(refiner, mesh, im, K, x, refine.RefineConfig(n_iter=1)).iterates)
     images = [load_rgb(f.rgb).astype(np.float32) / 255.0 for f in frames]
     rows = []

@@ -2,7 +2,7 @@
 paper's metrics (DESIGN.md section 5).
 
   python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml[,ir][,pgo] --json OUT
-      [--amlnet CKPT] [--zoom CKPT | --no-zoom] [--zoom-mirror] [--refiner CKPT] [--pgo-mode batch|online]
+      [--amlnet CKPT] [--zoom CKPT | --no-zoom] [--zoom-mirror] [--refiner CKPT] [--segmenter CKPT] [--pgo-mode batch|online]
       [--paper-information]
 
 Each scene is one rendezvous sequence (`rhaml_jax.sequence.load_scene`: its images and, for
@@ -54,6 +54,10 @@ class Args:
     (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
     refiner: Path | None = None
     """refiner checkpoint folder (the ir module; default: the shipped refiner_cpu)"""
+    segmenter: Path | None = None
+    """segmenter checkpoint folder (`train --stage segmenter`; the ir module: after the learned
+    iterations, the silhouette alignment to its masks of the image; default: none. Experimental:
+    none is shipped, see BENCHMARKS.md "Refinement")"""
     pgo_mode: Literal["batch", "online"] = "batch"
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
@@ -118,7 +122,8 @@ def _load(args: Args, modules):
     if "ir" in modules:
         from rhaml_jax import refine
 
-        refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot)
+        refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
+                                                    segmenter=args.segmenter)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))

@@ -82,7 +82,7 @@ class PipelineModel:
 
 class PipelineParams(NamedTuple):
     iml: IMLParams
-    refiner: object | None = None  # (refine.Refiner, render.Mesh) from refine.load_stage, or None without IR
+    refiner: object | None = None  # refine.StageParams from refine.load_stage, or None without IR
 
 
 class Sequence(NamedTuple):
@@ -166,11 +166,12 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
     from rhaml_jax import refine
 
-    refiner, mesh = params.refiner
+    p = params.refiner
 
     def one(frame):
         image, K, xypsi = frame
-        return refine.refine(refiner, mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner)
+        return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
+                             segmenter=p.segmenter)
 
     out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
     keep = detected & ~out.declined

@@ -169,7 +169,7 @@ def test_gradient_reaches_amlnet_through_refinement_and_the_pose_graph(stage):
     truth = jnp.asarray(seq.odom_b)
 
     def loss(amlnet_params):
-        params = pipeline.PipelineParams(iml.IMLParams((amlnet_params, p.amlnet[1]), p.zoom), (refiner, mesh))
+        params = pipeline.PipelineParams(iml.IMLParams((amlnet_params, p.amlnet[1]), p.zoom), refine.StageParams(refiner, mesh))
         r = pipeline.run(model, params, seq)
         d = planar.between(truth, r.xypsi)
         return jnp.sum(d[:, :2] ** 2) + 0.1 * jnp.sum(d[:, 2] ** 2), r
@@ -179,3 +179,29 @@ def test_gradient_reaches_amlnet_through_refinement_and_the_pose_graph(stage):
     leaves = jax.tree.leaves(g)
     assert all(bool(jnp.all(jnp.isfinite(v))) for v in leaves)
     assert sum(float(jnp.abs(v).sum()) for v in leaves) > 0
+
+
+def test_ir_with_a_segmenter_runs_the_alignment_to_its_masks(stage):
+    """StageParams with a segmenter: IR aligns every detected frame to the segmenter's mask (the
+    result moves from the learned iterations' and stays finite); declined frames keep IML's."""
+    from rhaml_jax import refine, render
+    from rhaml_jax.refine import segmenter as G
+    from rhaml_jax.robots import load_robot
+
+    m, p = stage
+    rc = refine.get_refiner_config("refiner_micro")
+    refiner = refine.Refiner(refine.net.init_params(rc, jax.random.key(3)), rc)
+    sc = G.get_segmenter_config("segmenter_micro")
+    params = G.init_params(sc, jax.random.key(4))
+    params["out"]["b"] = jnp.array([3.0])  # a segmenter that calls every pixel robot: the alignment must move
+    seg = G.Segmenter(params, sc)
+    mesh = render.as_mesh(load_robot("pioneer3dx"))
+    seq = _sequence(n=2)
+    tiny = refine.AlignConfig(crop=32, stages=((2.0, 2),), coarse_stages=((1.0, 1, "xy"),))
+    cfg = pipeline.PipelineConfig(modules=("iml", "ir"), chunk=2)
+    learned = pipeline.PipelineModel(m, cfg, refine.RefineConfig(n_iter=1))  # no alignment without a segmenter
+    aligned = pipeline.PipelineModel(m, cfg, refine.RefineConfig(align=tiny, n_iter=1))
+    without = pipeline.run_jit(learned, pipeline.PipelineParams(p, refine.StageParams(refiner, mesh)), seq)
+    with_seg = pipeline.run_jit(aligned, pipeline.PipelineParams(p, refine.StageParams(refiner, mesh, seg)), seq)
+    assert with_seg.ir is not None and bool(jnp.all(jnp.isfinite(with_seg.ir.xypsi)))
+    assert not np.allclose(with_seg.ir.xypsi, without.ir.xypsi)

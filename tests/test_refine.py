@@ -4,6 +4,7 @@ casting in area (no bias), the reference the alignment's unbiased end is defined
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -119,3 +120,21 @@ def test_hard_silhouette_area_is_unbiased_against_raycasting():
     assert len(ious) >= 15
     assert np.median(ious) >= 0.98, f"median IoU {np.median(ious):.4f}"
     assert abs(np.mean(ratios) - 1.0) <= 0.01, f"mean area ratio {np.mean(ratios):.4f}"
+
+
+def test_a_mask_no_pose_explains_is_not_followed():
+    """max_score: against a mask that no pose of the robot explains (a wide bar across the image),
+    the alignment keeps the initial estimate (accepted False, no flip confidence); against the
+    true mask it is accepted. Without max_score the bar is followed."""
+    gt = np.array([3.0, 0.4, 0.7], np.float32)
+    init = jnp.asarray(gt + np.array([0.1, -0.05, 0.2], np.float32))
+    bar = jnp.zeros((CAM.height, CAM.width), jnp.float32).at[200:260, :].set(1.0)
+    tiny = AlignConfig(crop=32, stages=((2.0, 3), (4.0, 3)), coarse_stages=((1.0, 2, "xy"),), debias_stages=0)
+    gated = dataclasses.replace(tiny, max_score=0.05)
+    robot = mesh()  # outside the trace: mesh() is cached
+    f = jax.jit(lambda m, c: align(robot, m, K, init, c), static_argnums=1)
+    wrong, right, free = f(bar, gated), f(_masks(gt[None])[0], gated), f(bar, tiny)
+    assert not bool(wrong.accepted) and np.allclose(wrong.xypsi, init) and float(wrong.flip_confidence) == 0.0
+    assert float(wrong.score) > 0.05
+    assert bool(right.accepted) and float(right.score) <= 0.05
+    assert bool(free.accepted) and not np.allclose(free.xypsi, init)

@@ -118,3 +118,4 @@ def test_refine_with_a_segmenter_declines_a_start_behind_the_camera(run, bop_set
     assert not bool(r.declined) and np.all(np.isfinite(r.xypsi))
     m = observed_mask(seg, image, jnp.array([10.0, 10.0, 90.0, 90.0]))
     assert m.shape == (32, 32) and float(m.min()) >= 0 and float(m.max()) <= 1
+

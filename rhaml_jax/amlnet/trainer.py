@@ -158,11 +158,10 @@ def amlnet_task(cfg: ModelConfig, tc: TrainConfig, val_source: BatchSource | Non
     def check_resume(stored, where):
         check_config(stored, cfg, where)
         if robot is not None and stored.get("robot") is not None:
-            from rhaml_jax.robots import RobotFingerprint
+            from rhaml_jax.robots import RobotFingerprint, require_same_robot
 
             a, b = (RobotFingerprint.from_dict(r, where) for r in (stored["robot"], robot))
-            if not a.same_robot(b):
-                raise RhamlError(f"{where}: this run trains robot {a.describe()}, not {b.describe()}")
+            require_same_robot(a, b, f"{where}: this run trains robot {{mine}}, not {{theirs}}")
 
     task = Task(name=cfg.name, params=params, batch_stats=stats, opt_init=tx.init,
                 grad_step=steps.grad_step, update=steps.update, schedule=sched, meta=meta,

@@ -64,7 +64,7 @@ class FitState:
 def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[FitState, Plan]:
     """The run's state: new (refusing a folder that holds a run, unless `resume`), or the stored
     one on `resume` (refusing another robot's folder; the stored plan wins)."""
-    from rhaml_jax.robots import RobotFingerprint, fingerprint
+    from rhaml_jax.robots import RobotFingerprint, fingerprint, require_same_robot
 
     model = load_checked_robot(robot_spec)
     fp = fingerprint(model)
@@ -73,10 +73,8 @@ def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[Fi
         if not resume:
             raise RhamlError(f"{out}: holds a fit run already (fit.json): --resume continues it; or choose another --out")
         stored = json.loads(path.read_text())
-        theirs = RobotFingerprint.from_dict(stored["robot"], str(path))
-        if not theirs.same_robot(fp):
-            raise RhamlError(f"--resume {out}: this run fits robot {theirs.describe()}, not --robot {robot_spec} "
-                             f"{fp.describe()}; nothing was changed")
+        require_same_robot(RobotFingerprint.from_dict(stored["robot"], str(path)), fp,
+                           f"--resume {out}: this run fits robot {{mine}}, not --robot {robot_spec} {{theirs}}; nothing was changed")
         return FitState(stored["robot"], stored["plan"], stored.get("done", {})), Plan.from_dict(stored["plan"], f"{path}: plan")
     if resume:
         raise RhamlError(f"--resume {out}: no fit run there (fit.json not found)")

@@ -31,11 +31,11 @@ from rhaml_jax import frames, render
 from rhaml_jax.camera import T_cam_robot
 from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, align_to, check_init
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
-from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, load_segmenter, observed_mask
+from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
 __all__ = ["load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -58,6 +58,10 @@ class RefineConfig:
     refiner the alignment always runs (AlignConfig() when None)"""
     n_iter: int | None = None
     """learned iterations (None: the refiner's config, 4)"""
+    mask_threshold: float = 0.3
+    """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
+    segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
+    at 0.3, 0.92 at 0.5)"""
 
 
 class RefineResult(NamedTuple):
@@ -144,8 +148,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     conf = jnp.float32(0.0)
     if acfg is not None:
         if segmenter is not None:
-            S = acfg.crop
-            r = align_to(mesh, lambda b: jax.image.resize(observed_mask(segmenter, image, b), (S, S), "bilinear"), K, xyp,
+            r = align_to(mesh, lambda b: alignment_target(segmenter, image, b, acfg.crop, cfg.mask_threshold), K, xyp,
                          Ww, Hh, acfg)
         elif target is None:
             r = align(mesh, mask, K, xyp, acfg)
@@ -186,16 +189,28 @@ def shipped_refiner(model=None) -> Refiner:
     return load_refiner(shipped_checkpoint("refiner_cpu"), model)
 
 
-def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True):
-    """The pipeline's IR stage: (RefineConfig, (Refiner, render.Mesh)) for `pipeline.PipelineModel
-    .refiner` and `PipelineParams.refiner`. The robot is the BOP data set's model
-    (`models/obj_000001.ply`) when `data_dir` has one, else the built-in robot; a refiner
-    checkpoint made for another robot is refused (unless not `check_robot`: a deliberate transfer
-    test). Default checkpoint: the shipped refiner_cpu."""
+class StageParams(NamedTuple):
+    """The IR stage's arrays (`pipeline.PipelineParams.refiner`): a pytree, None fields empty."""
+
+    refiner: Refiner | None  # the learned refiner
+    mesh: render.Mesh  # the robot's model
+    segmenter: Segmenter | None = None  # the alignment's observed-mask network (None: no alignment)
+
+
+def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
+               segmenter: str | Path | None = None):
+    """The pipeline's IR stage: (RefineConfig, StageParams) for `pipeline.PipelineModel.refiner`
+    and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
+    when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
+    refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
+    refiner_cpu; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
+    silhouette alignment to its masks."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
 
     robot = load_bop_model(data_dir) if data_dir is not None and bop_model_path(data_dir).exists() else load_robot("pioneer3dx")
-    refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), robot if check_robot else None)
-    return RefineConfig(), (refiner, render.as_mesh(robot))
+    check = robot if check_robot else None
+    refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), check)
+    seg = None if segmenter is None else load_segmenter(segmenter, check)
+    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg)

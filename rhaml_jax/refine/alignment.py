@@ -101,6 +101,11 @@ class AlignConfig:
     near head-on views a hypothesis can trade range for heading at almost the same loss"""
     min_range_m: float = 0.3
     """an initial estimate nearer than this (or behind the camera) is declined"""
+    max_score: float | None = None
+    """accept the result only if the winner's final loss (mean squared silhouette difference in
+    the crop) is at most this; else keep the initial estimate (`AlignResult.accepted` False).
+    For an observed mask that may be wrong (a segmenter's): a mask that no pose of the model
+    explains is not followed (None: always accept)"""
 
 
 class AlignResult(NamedTuple):
@@ -114,6 +119,7 @@ class AlignResult(NamedTuple):
     hypotheses: jax.Array  # (N, 3) final planar pose of every hypothesis
     scores: jax.Array  # (N,) their final losses
     box: jax.Array  # (4,) the crop box (full-image px)
+    accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score)
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -136,6 +142,13 @@ def pose_from_params(p, h) -> jaxlie.SE3:
     T_obs = jaxlie.SE3.from_rotation_and_translation(
         jaxlie.SO3.from_z_radians(xyp[..., 2]), jnp.stack([xyp[..., 0], xyp[..., 1], jnp.zeros_like(xyp[..., 0])], -1))
     return T_cam_robot(h) @ T_obs
+
+
+def _planar_pose(xypsi) -> jax.Array:
+    """(7,) SE3 wxyz_xyz of the planar pose (3,) (z = roll = pitch = 0)."""
+    T = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_z_radians(xypsi[2]),
+                                                 jnp.stack([xypsi[0], xypsi[1], jnp.zeros_like(xypsi[0])]))
+    return T.wxyz_xyz
 
 
 def _corners(mesh) -> jax.Array:
@@ -279,12 +292,16 @@ def align_to(mesh, target_in, K, init_xypsi, width: int, height: int, cfg: Align
     start = init
     if cfg.coarse_stages:
         coarse = dataclasses.replace(cfg, margin=cfg.coarse_margin, stages=cfg.coarse_stages, flip=False, mirror=False,
-                                     perturbed=0, debias_stages=0, coarse_stages=())
+                                     perturbed=0, debias_stages=0, coarse_stages=(), max_score=None)
         cbox = jax.lax.stop_gradient(crop_box(mesh, K, safe, coarse))
         start = align_crop(mesh, target_in(cbox), cbox, K, init, width, height, coarse).xypsi
         safe = jnp.where(declined, safe, start)
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
-    return align_crop(mesh, target_in(box), box, K, start, width, height, cfg)
+    r = align_crop(mesh, target_in(box), box, K, start, width, height, cfg)
+    if cfg.coarse_stages and cfg.max_score is not None:  # a rejected alignment keeps the estimate from before the coarse pass too
+        xyp = jnp.where(r.accepted, r.xypsi, init)
+        r = r._replace(xypsi=xyp, pose=_planar_pose(xyp))
+    return r
 
 
 def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: AlignConfig = AlignConfig()) -> AlignResult:
@@ -361,8 +378,7 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     out = out.at[2].set(init[2] + jax.lax.stop_gradient(
         jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))))
     out = out.at[2].set(jnp.arctan2(jnp.sin(out[2]), jnp.cos(out[2])))  # wrapped; gradient 1
-    out = jnp.where(declined, init, out)
-    T = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_z_radians(out[2]),
-                                                 jnp.stack([out[0], out[1], jnp.zeros_like(out[0])]))
-    return AlignResult(out, T.wxyz_xyz, jnp.zeros(2, jnp.float32), declined, jnp.where(declined, 0.0, conf),
-                       L_best, xyp_all, L, box)
+    accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
+    out = jnp.where(accepted, out, init)
+    conf = jnp.where(accepted, conf, 0.0)
+    return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted)

@@ -12,7 +12,6 @@ at the initial pose is made inside the jitted step (`render.render`, hard RGB + 
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import NamedTuple
 
@@ -189,11 +188,11 @@ def refiner_task(cfg: N.RefinerConfig, tc, mesh, model, val_source=None, num_dev
 
 
 def check_robot(meta: dict, model, where: str) -> None:
-    """Refuses a refiner checkpoint trained on another robot (`robots.RobotFingerprint.same_robot`:
+    """Refuses a refiner or segmenter checkpoint made for another robot (`robots.require_same_robot`:
     extents and surface area; the name is reported, not compared: a BOP set's model is called
     obj_000001)."""
-    from rhaml_jax.robots import RobotFingerprint, fingerprint
+    from rhaml_jax.robots import RobotFingerprint, fingerprint, require_same_robot
 
-    mine, theirs = RobotFingerprint.from_dict(meta.get("robot", {}), where), fingerprint(model)
-    if not mine.same_robot(theirs):
-        raise RhamlError(f"{where}: refiner checkpoint is for robot {mine.describe()}, not {theirs.describe()}")
+    kind = meta.get("kind", "refiner")
+    require_same_robot(RobotFingerprint.from_dict(meta.get("robot", {}), where), fingerprint(model),
+                       f"{where}: {kind} checkpoint is for robot {{mine}}, not {{theirs}}")

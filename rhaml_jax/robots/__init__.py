@@ -11,14 +11,14 @@ from pathlib import Path
 
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.robots._meshio import MESH_EXTENSIONS, load_mesh_parts
-from rhaml_jax.robots._fingerprint import RobotFingerprint, check_same_robot, fingerprint
+from rhaml_jax.robots._fingerprint import RobotFingerprint, check_same_robot, fingerprint, require_same_robot
 from rhaml_jax.robots._model import RobotModel
 from rhaml_jax.robots._pioneer import BUILTIN
 from rhaml_jax.robots._urdf import load_urdf
 
 from rhaml_jax.robots._silhouette import silhouette_iou
 
-__all__ = ["RobotModel", "RobotFingerprint", "load_robot", "load_mesh_parts", "silhouette_iou", "fingerprint", "check_same_robot",
+__all__ = ["RobotModel", "RobotFingerprint", "load_robot", "load_mesh_parts", "silhouette_iou", "fingerprint", "check_same_robot", "require_same_robot",
            "BUILTIN_ROBOTS"]
 
 BUILTIN_ROBOTS = tuple(BUILTIN)

@@ -76,15 +76,19 @@ def fingerprint(model: RobotModel) -> RobotFingerprint:
     return RobotFingerprint(model.name, ext, round(float(model.face_areas.sum()), 6), digest)
 
 
+def require_same_robot(mine: RobotFingerprint, theirs: RobotFingerprint, message: str) -> None:
+    """Raises RhamlError(message with {mine} and {theirs} filled by the robots' descriptions)
+    unless they are the same robot (`RobotFingerprint.same_robot`): every robot check's one rule."""
+    if not mine.same_robot(theirs):
+        raise RhamlError(message.format(mine=mine.describe(), theirs=theirs.describe()))
+
+
 def check_same_robot(stored: dict | None, model: RobotModel, what: str, where: str) -> None:
     """Raises RhamlError naming both robots when the checkpoint's stored fingerprint (`stored`,
     from its meta; None for a checkpoint from before fingerprints, which is let through) is not
     the robot `model` (named by `where`, e.g. the data set's model file)."""
     if stored is None:
         return
-    mine = RobotFingerprint.from_dict(stored, f"{what}: its robot fingerprint")
-    theirs = fingerprint(model)
-    if not mine.same_robot(theirs):
-        raise RhamlError(f"{what} was made for robot {mine.describe()}, but {where} is robot {theirs.describe()}: "
-                         "train networks for this robot (python -m rhaml_jax.fit), or pass --allow-other-robot "
-                         "for a deliberate transfer test")
+    require_same_robot(RobotFingerprint.from_dict(stored, f"{what}: its robot fingerprint"), fingerprint(model),
+                       f"{what} was made for robot {{mine}}, but {where} is robot {{theirs}}: train networks for this "
+                       "robot (python -m rhaml_jax.fit), or pass --allow-other-robot for a deliberate transfer test")
