@@ -46,6 +46,8 @@ class Args:
     """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates"""
     crop: int = 64
     debias_stages: int = 2
+    coarse: bool = True
+    """run the alignment's coarse position pass (`AlignConfig.coarse_stages`; --no-coarse: none)"""
     coarse_margin: float = AlignConfig.coarse_margin
     """`AlignConfig.coarse_margin`: the width of the coarse position pass's crop"""
     max_score: float | None = None
@@ -153,7 +155,8 @@ def main(a: Args) -> list[dict]:
     if inits_iml:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
-    cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin)
+    cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin,
+                      **({} if a.coarse else {"coarse_stages": ()}))
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
