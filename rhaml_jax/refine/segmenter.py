@@ -36,6 +36,7 @@ import numpy as np
 from rhaml_jax import crop as _crop
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine.net import _conv, _conv_init, json_safe, mask_loss
+from rhaml_jax.refine.train import CropSource
 
 __all__ = ["SegmenterConfig", "SEGMENTER_CONFIGS", "get_segmenter_config", "Segmenter", "init_params", "apply",
            "observed_mask", "alignment_target", "segmenter_loss", "SegmenterBatch", "SegmenterSource", "segmenter_task", "load_segmenter",
@@ -179,48 +180,17 @@ class SegmenterBatch(NamedTuple):
     mask: np.ndarray  # (B, S, S) float32 [0, 1] visible mask, cropped (area-averaged) by the same box
 
 
-class SegmenterSource:
-    """batch(step) of B crops number step * B ... (step + 1) * B - 1 of a BOP set's frames with the
-    robot in view: a pure function of (seed, step); decoded images kept in memory."""
+class SegmenterSource(CropSource):
+    """batch(step) of B crops number step * B ... (step + 1) * B - 1 (a pure function of (seed,
+    step)): `refine.train.CropSource` crops with margins drawn from `cfg.margin_range`."""
 
-    def __init__(self, root: Path, split: str, cfg: SegmenterConfig, batch: int, seed: int = 0, limit: int | None = None):
-        from rhaml_jax.data import ImageCache, load_bop_model, read_bop
-        from rhaml_jax.refine.train import _corners
+    cache_bytes = 6 << 30
 
-        self.frames = [f for f in read_bop(root, split) if f.observed][:limit]
-        if not self.frames:
-            raise RhamlError(f"{root}: split {split!r} has no image with the robot in view")
-        self.model = load_bop_model(root)
-        self.corners = _corners(self.model.vertices)
-        self.cfg, self.batch, self.seed = cfg, batch, seed
-        self._cache = ImageCache(6 << 30)
-
-    def _image(self, i):
-        from rhaml_jax.data import load_mask, load_rgb
-
-        f = self.frames[i]
-        both = self._cache.get(i, lambda: np.concatenate([load_rgb(f.rgb), (load_mask(f.mask)[..., None] * 255).astype(np.uint8)], -1))
-        return both[..., :3], both[..., 3]
+    def margin(self, rng: np.random.Generator) -> float:
+        return rng.uniform(*self.cfg.margin_range)
 
     def example(self, index: int):
-        from rhaml_jax.refine.train import initial_pose
-
-        i = index % len(self.frames)
-        f = self.frames[i]
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, index]))
-        init = initial_pose(f.xypsi, rng)
-        margin = rng.uniform(*self.cfg.margin_range)
-        c, s = np.cos(init[2]), np.sin(init[2])
-        T_obs = np.eye(4)
-        T_obs[:2, :2] = [[c, -s], [s, c]]
-        T_obs[:2, 3] = init[:2]
-        T_init = f.T_w2c @ T_obs
-        pc = self.corners @ T_init[:3, :3].T + T_init[:3, 3]
-        box = np.asarray(_crop.object_box(f.K, pc, margin=margin), np.float64)
-        rgb, mask = self._image(i)
-        S = self.cfg.crop
-        obs = _crop.crop_image_host(rgb, box, S, S).astype(np.float32) / 255
-        m = _crop.crop_image_host(np.repeat(mask[..., None], 3, -1), box, S, S)[..., 0].astype(np.float32) / 255
+        _, _, _, obs, m = self.drawn(index)
         return obs, m
 
     def __call__(self, step: int) -> SegmenterBatch:

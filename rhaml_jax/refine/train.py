@@ -25,7 +25,7 @@ from rhaml_jax import render
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine import net as N
 
-__all__ = ["RefinerBatch", "RefinerSource", "refiner_task", "initial_pose"]
+__all__ = ["RefinerBatch", "CropSource", "RefinerSource", "refiner_task", "initial_pose"]
 
 
 class RefinerBatch(NamedTuple):
@@ -59,12 +59,15 @@ def _se3_params(T: np.ndarray) -> np.ndarray:
     return np.asarray(jaxlie.SE3.from_matrix(jnp.asarray(T, jnp.float32)).wxyz_xyz)
 
 
-class RefinerSource:
-    """batch(step) of B examples number step * B ... (step + 1) * B - 1 (a pure function of
-    (seed, step)); decoded images kept in memory."""
+class CropSource:
+    """Crops of a BOP set's frames with the robot in view, around initial poses drawn by
+    `initial_pose` (the box: `crop.object_box` at the drawn pose times `margin(rng)`): example
+    number `index` is a pure function of (seed, index); decoded images kept in memory. The
+    refiner's and the segmenter's training data (`cfg.crop`: the crop side)."""
 
-    def __init__(self, root: Path, split: str, cfg: N.RefinerConfig, batch: int, seed: int = 0,
-                 limit: int | None = None):
+    cache_bytes = 4 << 30
+
+    def __init__(self, root: Path, split: str, cfg, batch: int, seed: int = 0, limit: int | None = None):
         from rhaml_jax.data import ImageCache, load_bop_model, read_bop
 
         self.frames = [f for f in read_bop(root, split) if f.observed][:limit]
@@ -73,7 +76,7 @@ class RefinerSource:
         self.model = load_bop_model(root)
         self.corners = _corners(self.model.vertices)
         self.cfg, self.batch, self.seed = cfg, batch, seed
-        self._cache = ImageCache(4 << 30)
+        self._cache = ImageCache(self.cache_bytes)
 
     def _image(self, i):
         from rhaml_jax.data import load_mask, load_rgb
@@ -82,22 +85,38 @@ class RefinerSource:
         both = self._cache.get(i, lambda: np.concatenate([load_rgb(f.rgb), (load_mask(f.mask)[..., None] * 255).astype(np.uint8)], -1))
         return both[..., :3], both[..., 3]  # (H, W, 3) RGB, (H, W) mask
 
-    def example(self, index: int):
+    def margin(self, rng: np.random.Generator) -> float:
+        """The crop box's margin (drawn after the initial pose)."""
+        return self.cfg.margin
+
+    def drawn(self, index: int):
+        """(frame, T_init (4, 4) model to camera at the drawn pose, box (4,), observed crop (S, S, 3)
+        and visible-mask crop (S, S), both float32 in [0, 1])."""
         i = index % len(self.frames)
         f = self.frames[i]
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, index]))
         init = initial_pose(f.xypsi, rng)
+        margin = self.margin(rng)
         T_obs = np.eye(4)
         c, s = np.cos(init[2]), np.sin(init[2])
         T_obs[:2, :2] = [[c, -s], [s, c]]
         T_obs[:2, 3] = init[:2]
         T_init = f.T_w2c @ T_obs
         pc = self.corners @ T_init[:3, :3].T + T_init[:3, 3]
-        box = np.asarray(_crop.object_box(f.K, pc, margin=self.cfg.margin), np.float64)
+        box = np.asarray(_crop.object_box(f.K, pc, margin=margin), np.float64)
         rgb, mask = self._image(i)
         S = self.cfg.crop
         obs = _crop.crop_image_host(rgb, box, S, S).astype(np.float32) / 255
         m = _crop.crop_image_host(np.repeat(mask[..., None], 3, -1), box, S, S)[..., 0].astype(np.float32) / 255
+        return f, T_init, box, obs, m
+
+
+class RefinerSource(CropSource):
+    """batch(step) of B examples number step * B ... (step + 1) * B - 1 (a pure function of
+    (seed, step)): `CropSource` crops at the config's margin, with the poses."""
+
+    def example(self, index: int):
+        f, T_init, box, obs, m = self.drawn(index)
         return obs, m, box.astype(np.float32), f.K.astype(np.float32), _se3_params(T_init), _se3_params(f.T_m2c)
 
     def __call__(self, step: int) -> RefinerBatch:
