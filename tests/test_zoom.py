@@ -168,7 +168,9 @@ def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
     est = apply_correction(guess, np.stack([dz["x"], dz["y"], dz["psi"]], 1))
     for row, e, o in zip(res["frames"], est, np.asarray(d["o"])):
         if o >= 0.5:
-            np.testing.assert_allclose(row["est"], e, atol=1e-4)
+            # 1e-3 (m, rad): evaluate batches frames through jitted convs, this reference runs them
+            # eagerly; float32 sums in another order differed by 1.0e-4 rad on the CI machine
+            np.testing.assert_allclose(row["est"], e, atol=1e-3)
     # --zoom-mirror: the zoom stage also on the mirrored crops, the two averaged
     main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
           "--json", str(out), "--batch", "4", "--zoom-mirror"])
@@ -179,7 +181,9 @@ def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
     est = apply_correction(guess, t)
     for row, e, o in zip(res["frames"], est, np.asarray(d["o"])):
         if o >= 0.5:
-            np.testing.assert_allclose(row["est"], e, atol=1e-4)
+            # 1e-3 (m, rad): evaluate batches frames through jitted convs, this reference runs them
+            # eagerly; float32 sums in another order differed by 1.0e-4 rad on the CI machine
+            np.testing.assert_allclose(row["est"], e, atol=1e-3)
     with pytest.raises(RhamlError, match="not a zoom-in stage"):
         main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "amlnet")])
     with pytest.raises(RhamlError, match="--zoom-mirror"):
