@@ -6,6 +6,8 @@ Loads and checks the robot (URDF or mesh), generates its appearance-randomised t
 trains AMLNet, its zoom stage (its crop sized to the robot) and the refiner, exports them to
 DIR/networks/ (for `evaluate --amlnet/--zoom/--refiner` and the pipeline), evaluates them on
 generated circle + sine scenarios and on the held-out appearance set, and writes DIR/report.md.
+Distances are scaled to the robot's size and AMLNet and the zoom stage fine-tune the shipped
+Pioneer networks unless --from-scratch (`rhaml_jax.fitting._plan`).
 The budget is split between the stages by the rule in `rhaml_jax.fitting._plan`; killed
 anywhere, `--resume` continues (finished stages are skipped, trainings resume exactly).
 """
@@ -37,6 +39,8 @@ class Args:
     """network sizes: cpu (the shipped configs) or tiny (test-size, a smoke run)"""
     seed: int = 0
     """data and initialisation seed"""
+    from_scratch: bool = False
+    """AMLNet and its zoom stage from random weights instead of fine-tuning the shipped Pioneer networks (size cpu)"""
     workers: int = min(2, os.cpu_count() or 1)
     """rendering processes"""
 
@@ -44,9 +48,11 @@ class Args:
 def main(argv: list[str] | None = None):
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
-    from rhaml_jax.fitting import make_plan, run_fit
+    from rhaml_jax.fitting import load_checked_robot, make_plan, run_fit, world_scale
 
-    state = run_fit(args.robot, args.out, make_plan(args.budget_minutes, args.size), args.resume, args.workers, args.seed)
+    model = load_checked_robot(args.robot)
+    plan = make_plan(args.budget_minutes, args.size, len(model.faces), world_scale(model), not args.from_scratch)
+    state = run_fit(args.robot, args.out, plan, args.resume, args.workers, args.seed)
     print(f"fit: {args.out / 'report.md'} ({sum(state.done.values()) / 60:.1f} min); networks in {args.out / 'networks'}")
     return state
 

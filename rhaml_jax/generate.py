@@ -60,6 +60,8 @@ class Args:
     """Image width (px); the intrinsics scale with the size."""
     height: int = DEFAULT_CAMERA.height
     """Image height (px)."""
+    scale: float = 1.0
+    """Every distance (training depths, scenario paths and rooms) times this, for a robot of another size (fit uses its length over the Pioneer's 0.455 m); 1 gives DESIGN.md's scenarios."""
     max_faces: int | None = None
     """Simplify the robot model to about this many faces before rendering."""
     workers: int = min(2, os.cpu_count() or 1)
@@ -83,6 +85,8 @@ def generate(args: Args) -> dict:
         check_heldout(args.ranges, args.heldout_ranges)  # before any rendering
     if args.workers < 1:
         raise RhamlError(f"--workers must be at least 1, got {args.workers}")
+    if not args.scale > 0:
+        raise RhamlError(f"--scale must be positive, got {args.scale}")
     if args.width < 16 or args.height < 16:
         raise RhamlError(f"--width/--height must be at least 16 px, got {args.width}x{args.height}")
     from rhaml_jax.robots import load_robot
@@ -93,14 +97,15 @@ def generate(args: Args) -> dict:
     t = time.perf_counter()
     if args.heldout and args.scenario == "rendezvous":
         out = write_scenario(args.out, "rendezvous", args.robot, camera, args.seed, args.frames, args.workers,
-                             max_faces=args.max_faces, heldout=args.heldout_ranges)
+                             max_faces=args.max_faces, heldout=args.heldout_ranges, scale=args.scale)
     elif args.heldout:
         out = write_heldout(args.out, args.robot, camera, args.seed, args.frames, num, negatives, args.workers, args.max_faces,
-                            args.heldout_ranges, args.ranges)
+                            args.heldout_ranges, args.ranges, args.scale)
     elif args.scenario is not None:
-        out = write_scenario(args.out, args.scenario, args.robot, camera, args.seed, args.frames, args.workers, max_faces=args.max_faces)
+        out = write_scenario(args.out, args.scenario, args.robot, camera, args.seed, args.frames, args.workers, max_faces=args.max_faces,
+                             scale=args.scale)
     else:
-        cfg = SynthConfig(appearance=args.ranges if args.appearance == "v2" else None)
+        cfg = SynthConfig(appearance=args.ranges if args.appearance == "v2" else None).scaled(args.scale)
         out = write_training_set(args.out, args.robot, camera, args.seed, num, negatives, args.workers, max_faces=args.max_faces, cfg=cfg)
     out["seconds"] = round(time.perf_counter() - t, 2)
     return out

@@ -40,6 +40,26 @@ def test_circle_and_sine_match_design_formulas():
     assert 1.9 < s[:, 0].min() and s[:, 0].max() < 7.1  # the paper's 5 m of depth variation
 
 
+@pytest.mark.parametrize("name", ["circle", "sine", "rendezvous"])
+def test_scaled_scenarios_scale_every_distance_and_no_heading(name):
+    from rhaml_jax.data._writer import scenario_poses
+
+    (ref, ref_bounds), (small, bounds) = scenario_poses(name, 60, 3), scenario_poses(name, 60, 3, 0.39)
+    assert scenario_poses(name, 60, 3, 1.0)[1] == ref_bounds  # scale 1: DESIGN.md's scenarios
+    np.testing.assert_allclose(bounds, 0.39 * np.asarray(ref_bounds))
+    for a, b in zip(ref, small):
+        for truth_a, truth_b in zip(a[1:3], b[1:3]):
+            np.testing.assert_allclose(truth_b[:, :2], 0.39 * truth_a[:, :2], atol=1e-12)
+            np.testing.assert_array_equal(truth_b[:, 2], truth_a[:, 2])
+    with pytest.raises(RhamlError, match="--scale 0"):
+        scenario_poses(name, 60, 3, 0.0)
+
+
+def test_scaled_synth_config_scales_the_working_range():
+    cfg = data.SynthConfig()
+    assert cfg.scaled(1.0) is cfg and cfg.scaled(0.5).depth_m == (0.5, 4.0)
+
+
 def test_odometry_noise_model():
     truth = data.circle(500)
     a, b = data.noisy_odometry(truth, seed=3), data.noisy_odometry(truth, seed=3)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.fitting import STAGES, load_checked_robot, make_plan, run_fit
+from rhaml_jax.fitting import STAGES, load_checked_robot, make_plan, run_fit, world_scale
 from tests.conftest import shared_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,7 +27,8 @@ def _turtlebot() -> str:
 @pytest.fixture(scope="module")
 def killed_and_resumed(tmp_path_factory):
     out = tmp_path_factory.mktemp("fit") / "tb"
-    robot, plan = _turtlebot(), make_plan(5, "tiny")
+    robot = _turtlebot()
+    plan = make_plan(5, "tiny", scale=world_scale(load_checked_robot(robot)))
     first = run_fit(robot, out, plan, workers=1, stop_after="amlnet", log=lambda s: None)
     assert list(first.done) == ["data", "amlnet"]
     amlnet_ckpt = sorted((out / "runs" / "amlnet" / "checkpoints").iterdir())
@@ -46,6 +47,11 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     report = (out / "report.md").read_text()
     assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
     assert (out / "report_trajectories.png").stat().st_size > 1000
+    # the TurtleBot's world is 0.39 of the Pioneer's: the circle 2.5-6.5 m becomes 0.98-2.54 m
+    assert "Distances x 0.39" in report
+    frames = json.loads((out / "eval/results/circle_iml.json").read_text())["frames"]
+    ranges = [np.hypot(*f["gt"][:2]) for f in frames if f["observed"]]
+    assert 0.39 * 2.5 - 1e-3 <= min(ranges) and max(ranges) <= 0.39 * 6.5 + 1e-3
 
 
 def test_networks_carry_the_robot_and_its_crop_size(killed_and_resumed):
@@ -109,10 +115,16 @@ def test_bad_input_one_line_exit_2(tmp_path):
 def test_budget_rule():
     p = make_plan(180)
     assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
-    q = make_plan(45)  # 2700 s: AMLNet 45 % at 0.6 s per step, data 15 % at 25 images/s
-    assert (q.amlnet_steps, q.images + q.negatives) == (2025, 10125)
+    assert (p.scale, p.warm_start) == (1.0, True)
+    q = make_plan(45)  # 2700 s: AMLNet 45 % at 0.6 s per step, data 15 % at 25 images/s (604 faces)
+    assert q.amlnet_steps == 2025 and q.images + q.negatives == int(405 / 0.04 / 1.1)
+    # a 91,104-face mesh renders at 10 images/s and evaluates at 1.17 s per frame: fewer of both
+    t = make_plan(45, faces=91_104, scale=0.39)
+    assert t.images + t.negatives == int(405 / 0.1 / 1.1) and t.frames == int(0.18 * 2700 / 1.17 / 6)
+    assert (t.amlnet_steps, t.scale) == (2025, 0.39)
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     with pytest.raises(RhamlError, match="give at least"):
         make_plan(3)
+    assert not make_plan(5, "tiny").warm_start  # test-size networks have no shipped weights
     assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)

@@ -49,6 +49,11 @@ class SynthConfig:
     negative_fraction: float = 0.125
     appearance: _ap.AppearanceConfig | None = _ap.AppearanceConfig()
 
+    def scaled(self, scale: float) -> "SynthConfig":
+        """This config with its working range of depths times `scale` (a smaller robot's world,
+        `rhaml_jax.fitting.world_scale`); itself at 1."""
+        return self if scale == 1.0 else dataclasses.replace(self, depth_m=(self.depth_m[0] * scale, self.depth_m[1] * scale))
+
 
 class Sample(NamedTuple):
     rgb: np.ndarray  # (H, W, 3) uint8

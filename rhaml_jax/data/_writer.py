@@ -209,21 +209,27 @@ def _run_scenario_job(job: ScenarioJob):
     return records
 
 
-def scenario_poses(name: str, frames: int, seed: int):
+def scenario_poses(name: str, frames: int, seed: int, scale: float = 1.0):
     """World-frame truth of (observer, observed) robots; returns list of scenes:
-    [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odo, observed odo)] and the room bounds."""
-    if name in ("circle", "sine"):
-        target = traj.circle(frames) if name == "circle" else traj.sine(frames)
-        observer = np.zeros_like(target)
-        odo_target = traj.noisy_odometry(target, seed=seed * 2 + 1)
-        return [(0, observer, target, observer.copy(), odo_target)], (-1.0, 9.0, -4.0, 4.0)
-    if name == "rendezvous":
-        room = traj.Room()
-        a, b = traj.rendezvous(frames, seed, room)
-        oa, ob = traj.noisy_odometry(a, seed * 2 + 1), traj.noisy_odometry(b, seed * 2 + 2)
-        return [(0, a, b, oa, ob), (1, b, a, ob, oa)], (room.x0, room.x1, room.y0, room.y1)
+    [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odo, observed odo)] and the room bounds.
+
+    `scale` multiplies every distance (paths and room; headings unchanged): DESIGN.md's scenarios
+    at 1, a smaller robot's world below it (`rhaml_jax.fitting.world_scale`)."""
     from rhaml_jax.errors import RhamlError
 
+    if not scale > 0:
+        raise RhamlError(f"--scale {scale}: must be positive")
+    k = np.array([scale, scale, 1.0])
+    if name in ("circle", "sine"):
+        target = (traj.circle(frames) if name == "circle" else traj.sine(frames)) * k
+        observer = np.zeros_like(target)
+        odo_target = traj.noisy_odometry(target, seed=seed * 2 + 1)
+        return [(0, observer, target, observer.copy(), odo_target)], tuple(scale * b for b in (-1.0, 9.0, -4.0, 4.0))
+    if name == "rendezvous":
+        room = traj.Room()
+        a, b = (p * k for p in traj.rendezvous(frames, seed, room))
+        oa, ob = traj.noisy_odometry(a, seed * 2 + 1), traj.noisy_odometry(b, seed * 2 + 2)
+        return [(0, a, b, oa, ob), (1, b, a, ob, oa)], tuple(scale * v for v in (room.x0, room.x1, room.y0, room.y1))
     raise RhamlError(f"--scenario: unknown scenario {name!r} (expected circle, sine or rendezvous)")
 
 
@@ -256,10 +262,11 @@ def write_sequence(out: Path, scenes, bounds, robot: str, camera: Camera, seed: 
 
 
 def write_scenario(out: Path, name: str, robot: str, camera: Camera, seed: int, frames: int = 500, workers: int = 2,
-                   chunk: int = 25, max_faces: int | None = None, heldout=None) -> dict:
+                   chunk: int = 25, max_faces: int | None = None, heldout=None, scale: float = 1.0) -> dict:
     """A BOP scenario (split `test`) with the four TUM files per scene (DESIGN.md sections 3-4);
-    with `heldout` (a HeldoutConfig), under the held-out benchmark's look."""
-    scenes, bounds = scenario_poses(name, frames, seed)
+    with `heldout` (a HeldoutConfig), under the held-out benchmark's look; `scale` multiplies its
+    distances (`scenario_poses`)."""
+    scenes, bounds = scenario_poses(name, frames, seed, scale)
     seen = write_sequence(out, scenes, bounds, robot, camera, seed, workers, chunk, max_faces, label=f"rendering {name}",
                           heldout=heldout, look_index=("circle", "sine", "rendezvous").index(name))
     return {"scenario": name, "scenes": len(scenes), "frames": frames, "observed_frames": seen, "out": str(out)}
@@ -269,23 +276,25 @@ HELDOUT_PARTS = ("circle", "sine", "background", "random")
 
 
 def write_heldout(out: Path, robot: str, camera: Camera, seed: int, frames: int = 500, random: int = 500, background: int = 100,
-                  workers: int = 2, max_faces: int | None = None, heldout=None, appearance=None) -> dict:
+                  workers: int = 2, max_faces: int | None = None, heldout=None, appearance=None, scale: float = 1.0) -> dict:
     """The held-out appearance benchmark: four BOP data sets under `out`, `circle` and `sine`
     (DESIGN.md scenarios, `frames` each), `background` (`background` frames without the robot)
     and `random` (`random` robot frames at training-like random poses), all rendered with the
     held-out settings of `heldout` (see rhaml_jax.data._appearance), checked to lie outside
-    `appearance`'s training ranges first. Nothing may train or tune on it."""
+    `appearance`'s training ranges first. Nothing may train or tune on it. `scale` multiplies the
+    scenarios' distances and the random poses' depths (`scenario_poses`)."""
     from rhaml_jax.data._appearance import AppearanceConfig, HeldoutConfig, check_heldout
 
     heldout = HeldoutConfig() if heldout is None else heldout
     appearance = AppearanceConfig() if appearance is None else appearance
     check_heldout(appearance, heldout)
     out = Path(out)
-    cfg = SynthConfig(appearance=appearance)
+    cfg = SynthConfig(appearance=appearance).scaled(scale)
     res = {}
     for name in ("circle", "sine"):
         if frames:
-            res[name] = write_scenario(out / name, name, robot, camera, seed, frames, workers, max_faces=max_faces, heldout=heldout)
+            res[name] = write_scenario(out / name, name, robot, camera, seed, frames, workers, max_faces=max_faces, heldout=heldout,
+                                       scale=scale)
     if background:
         res["background"] = write_training_set(out / "background", robot, camera, seed + 1, 0, background, workers, max_faces=max_faces,
                                                cfg=cfg, heldout=heldout)

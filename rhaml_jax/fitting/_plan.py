@@ -6,11 +6,24 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v2 training images at 320 x 256 | 15 % | 25 images/s (2 processes) | images (7/8 with the robot) |
+| data: v2 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.04 s + 0.66 us per mesh face per image (2 processes) | images (7/8 with the robot) |
 | amlnet: `cpu`, batch 32 | 45 % | 0.6 s per step | steps |
 | zoom: `zoom_cpu`, batch 32 | 12 % | 0.25 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.6 s per step | steps |
-| evaluation: scenarios, held-out set, evaluate | 18 % | 2 frames/s (render + IML + IR) | frames per scenario |
+| evaluation: scenarios, held-out set, evaluate | 18 % | 0.5 s + 7.4 us per mesh face per frame (render + IML + IR) | frames per scenario |
+
+Rendering cost grows with the robot's mesh, so the data and evaluation rates do: two points
+measured on this machine, the built-in Pioneer (604 faces: 25 training images/s, 2 evaluation
+frames/s) and the TurtleBot3 Burger URDF (91,104 faces: 10 images/s, 1.17 s per evaluated
+frame), joined by a line (BENCHMARKS.md, "Your own robot").
+
+Every distance of the robot's world is scaled by `world_scale(model)`: the robot's length over
+the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
+0.178 m TurtleBot3), so that a small robot is seen at the pixel sizes a Pioneer is at its
+distances: the training depths (1-8 m for the Pioneer), the circle and sine paths and their
+rooms. At size "cpu" AMLNet and its zoom stage start from the shipped Pioneer networks
+(`warm_start`, fine-tuning; `fit --from-scratch` starts from random weights, as the shipped
+networks' own reproduction must).
 
 Counts are capped where more stops paying (AMLNet at 4000 steps, 20,000 images per training
 pass, 500 frames per scenario as DESIGN.md fixes) and a stage below its minimum (AMLNet 100
@@ -27,7 +40,12 @@ from typing import Literal
 from rhaml_jax.errors import RhamlError
 
 SHARES = {"data": 0.15, "amlnet": 0.45, "zoom": 0.12, "refiner": 0.10, "evaluation": 0.18}
-RATES = {"images_per_s": 25.0, "amlnet_step_s": 0.6, "zoom_step_s": 0.25, "refiner_step_s": 0.6, "eval_frames_per_s": 2.0}
+RATES = {"amlnet_step_s": 0.6, "zoom_step_s": 0.25, "refiner_step_s": 0.6}
+# seconds per image and per evaluated frame: the line through the two measured points above
+MEASURED_FACES = (604, 91_104)
+IMAGE_S = (1 / 25, 1 / 10)
+EVAL_FRAME_S = (1 / 2, 1.17)
+PIONEER_LENGTH_M = 0.455  # the built-in Pioneer's length (robots.fingerprint: 45.5 x 38.1 x 23.7 cm)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
@@ -61,6 +79,10 @@ class Plan:
     eval_sets: tuple[str, ...]
     """what is evaluated: circle, sine (ours) and heldout/PART (the held-out appearance set)"""
     budget_minutes: float
+    scale: float
+    """every distance of the robot's world (training depths, scenario paths and rooms) times this"""
+    warm_start: bool
+    """AMLNet and the zoom stage start from the shipped Pioneer networks (fine-tuning)"""
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "plan") -> "Plan":
@@ -78,23 +100,34 @@ class Plan:
         return self.eval_width * 3 // 4
 
 
-def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu") -> Plan:
-    """The plan for a budget (module docstring); RhamlError when it is too small to train anything."""
+def world_scale(model) -> float:
+    """The robot's planar length over the built-in Pioneer's, to two decimals (module docstring)."""
+    return round(float(max(model.extents[0], model.extents[1])) / PIONEER_LENGTH_M, 2)
+
+
+def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces: int = 604, scale: float = 1.0,
+              warm_start: bool = True) -> Plan:
+    """The plan for a budget (module docstring) and a robot of `faces` mesh faces and world
+    `scale`; RhamlError when it is too small to train anything."""
     if not budget_minutes > 0:
         raise RhamlError(f"--budget-minutes {budget_minutes}: must be positive")
-    if size == "tiny":
+    if size == "tiny":  # test-size networks have no shipped weights to start from
         return Plan("tiny", "tiny", "tiny_zoom", "refiner_micro", 160, 24, 6, 12, 4, 4, 4, 8, 8, 8, 8, 160,
-                    ("circle", "heldout/circle"), budget_minutes)
+                    ("circle", "heldout/circle"), budget_minutes, scale, False)
     if size != "cpu":
         raise RhamlError(f"--size {size!r}: expected cpu or tiny")
     s = budget_minutes * 60.0
-    images = min(CAPS["images"], int(SHARES["data"] * s * RATES["images_per_s"]))
+    # the line through the two points, no cheaper than the smaller mesh
+    grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
+    image_s, frame_s = (t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, EVAL_FRAME_S))
+    # the refiner's images (a tenth as many) are counted at the training images' rate
+    images = min(CAPS["images"], int(SHARES["data"] * s / image_s / 1.1))
     counts = {"images": images,
               "amlnet_steps": min(CAPS["amlnet_steps"], int(SHARES["amlnet"] * s / RATES["amlnet_step_s"])),
               "zoom_steps": min(CAPS["zoom_steps"], int(SHARES["zoom"] * s / RATES["zoom_step_s"])),
               "refiner_steps": min(CAPS["refiner_steps"], int(SHARES["refiner"] * s / RATES["refiner_step_s"])),
               # two scenarios and four held-out parts of about the same size, each evaluated
-              "frames": min(CAPS["frames"], int(SHARES["evaluation"] * s * RATES["eval_frames_per_s"] / 6))}
+              "frames": min(CAPS["frames"], int(SHARES["evaluation"] * s / frame_s / 6))}
     short = [k for k, v in counts.items() if v < MINIMA[k]]
     if short:
         need = max(MINIMA[k] / counts[k] * budget_minutes if counts[k] else float("inf") for k in short)
@@ -103,4 +136,4 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu") -> Pl
                          f"give at least {need:.0f} minutes")
     return Plan("cpu", "cpu", "zoom_cpu", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
                 counts["amlnet_steps"], counts["zoom_steps"], counts["refiner_steps"], 32, 32, 16, counts["frames"], 640,
-                EVAL_SETS, budget_minutes)
+                EVAL_SETS, budget_minutes, scale, warm_start)

@@ -98,7 +98,10 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              f"Budget {plan.budget_minutes:g} min, size {plan.size}: {plan.images} training images with the robot and "
              f"{plan.negatives} without at {plan.width} x {plan.height}; AMLNet `{plan.amlnet_config}` {plan.amlnet_steps} "
              f"steps of {plan.amlnet_batch}, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
-             f"{plan.refiner_steps} steps; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}.",
+             f"{plan.refiner_steps} steps; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
+             f"Distances x {plan.scale:g} of the Pioneer's (training depths {1.0 * plan.scale:.2f}-{8.0 * plan.scale:.2f} m, "
+             f"circle radius {2.0 * plan.scale:.2f} m about {4.5 * plan.scale:.2f} m ahead); AMLNet and zoom "
+             + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else "trained from random weights."),
              "", "| stage | seconds |", "| --- | --- |"]
     lines += [f"| {k} | {v:.0f} |" for k, v in state["done"].items()]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]

@@ -23,6 +23,7 @@ from typing import Callable
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.fitting._plan import Plan
 
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 STAGES = ("data", "amlnet", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 
@@ -115,7 +116,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
     length = float(model.extents[0])
 
     def data_stage():
-        v2 = SynthConfig(appearance=AppearanceConfig())
+        v2 = SynthConfig(appearance=AppearanceConfig()).scaled(plan.scale)
         write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
                            workers, cfg=v2)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
@@ -129,9 +130,14 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
                 "--val-every", str(max(1, steps // val_times)), "--ckpt-every", str(max(1, min(250, steps // 4))),
                 "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / stage)
 
-    amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8)  # noqa: E731
+    def warm(shipped: str) -> list[str]:
+        """--init from a shipped network of the same config (Plan.warm_start)."""
+        return ["--init", str(SHIPPED / shipped)] if plan.warm_start else []
+
+    amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8,  # noqa: E731
+                                 *warm("amlnet_cpu"))
     zoom_stage = lambda: train("zoom", plan.zoom_config, "train", plan.zoom_steps, plan.zoom_batch, 8, 8,  # noqa: E731
-                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526")
+                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526", *warm("zoom_cpu"))
     refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
 
     def export_stage():
@@ -147,8 +153,9 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
     def scenarios_stage():
         cam = _camera(plan.eval_width, plan.eval_height)
         for name in ("circle", "sine"):
-            write_scenario(ev / name, name, robot_spec, cam, seed, plan.frames, workers)
-        write_heldout(ev / "heldout", robot_spec, cam, seed, plan.frames, plan.frames, max(4, plan.frames // 5), workers)
+            write_scenario(ev / name, name, robot_spec, cam, seed, plan.frames, workers, scale=plan.scale)
+        write_heldout(ev / "heldout", robot_spec, cam, seed, plan.frames, plan.frames, max(4, plan.frames // 5), workers,
+                      scale=plan.scale)
 
     def evaluate_stage():
         from rhaml_jax.evaluate import main as evaluate_main
