@@ -116,12 +116,12 @@ def test_budget_rule():
     p = make_plan(180)
     assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
     assert (p.scale, p.warm_start) == (1.0, True)
-    q = make_plan(45)  # 2700 s: AMLNet 45 % at 0.6 s per step, data 15 % at 25 images/s (604 faces)
-    assert q.amlnet_steps == 2025 and q.images + q.negatives == int(405 / 0.04 / 1.1)
+    q = make_plan(45)  # 2700 s: AMLNet 45 % at 1.0 s per step, data 15 % at 25 images/s (604 faces)
+    assert q.amlnet_steps == 1215 and q.images + q.negatives == int(405 / 0.04 / 1.1)
     # a 91,104-face mesh renders at 10 images/s and evaluates at 1.17 s per frame: fewer of both
     t = make_plan(45, faces=91_104, scale=0.39)
     assert t.images + t.negatives == int(405 / 0.1 / 1.1) and t.frames == int(0.18 * 2700 / 1.17 / 6)
-    assert (t.amlnet_steps, t.scale) == (2025, 0.39)
+    assert (t.amlnet_steps, t.scale) == (1215, 0.39)
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     with pytest.raises(RhamlError, match="give at least"):

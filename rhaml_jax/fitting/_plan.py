@@ -1,14 +1,16 @@
 """What `fit` does for a robot within a time budget: a Plan (data sizes, training steps,
 evaluation sizes), fixed once at the start and stored, so that `--resume` continues the same run.
 
-The budget rule (sizes "cpu": the shipped configs on this 2-core CPU). The budget is split into
+The budget rule (size "cpu": the configs of the networks that hold up best on the held-out
+appearance set, `cpu_heat` + `zoom_cpu_luma`, on v3 data: appearance randomisation with half the
+robots repainted, BENCHMARKS.md "A dense first stage, luminance input, repainted robots"). The budget is split into
 shares, and each share is turned into a count with a rate measured here (BENCHMARKS.md):
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
 | data: v2 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.04 s + 0.66 us per mesh face per image (2 processes) | images (7/8 with the robot) |
-| amlnet: `cpu`, batch 32 | 45 % | 0.6 s per step | steps |
-| zoom: `zoom_cpu`, batch 32 | 12 % | 0.25 s per step | steps |
+| amlnet: `cpu_heat`, batch 32 | 45 % | 1.0 s per step | steps |
+| zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.25 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.6 s per step | steps |
 | evaluation: scenarios, held-out set, evaluate | 18 % | 0.5 s + 7.4 us per mesh face per frame (render + IML + IR) | frames per scenario |
 
@@ -21,9 +23,9 @@ Every distance of the robot's world is scaled by `world_scale(model)`: the robot
 the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
 0.178 m TurtleBot3), so that a small robot is seen at the pixel sizes a Pioneer is at its
 distances: the training depths (1-8 m for the Pioneer), the circle and sine paths and their
-rooms. At size "cpu" AMLNet and its zoom stage start from the shipped Pioneer networks
-(`warm_start`, fine-tuning; `fit --from-scratch` starts from random weights, as the shipped
-networks' own reproduction must).
+rooms. At size "cpu" AMLNet and its zoom stage start from the shipped Pioneer networks of
+their configs, `heat_cpu` and `zoom_luma_cpu` (`warm_start`: fine-tuning at half the learning
+rate; `fit --from-scratch` starts from random weights, as reproducing the shipped networks must).
 
 Counts are capped where more stops paying (AMLNet at 4000 steps, 20,000 images per training
 pass, 500 frames per scenario as DESIGN.md fixes) and a stage below its minimum (AMLNet 100
@@ -40,7 +42,7 @@ from typing import Literal
 from rhaml_jax.errors import RhamlError
 
 SHARES = {"data": 0.15, "amlnet": 0.45, "zoom": 0.12, "refiner": 0.10, "evaluation": 0.18}
-RATES = {"amlnet_step_s": 0.6, "zoom_step_s": 0.25, "refiner_step_s": 0.6}
+RATES = {"amlnet_step_s": 1.0, "zoom_step_s": 0.25, "refiner_step_s": 0.6}
 # seconds per image and per evaluated frame: the line through the two measured points above
 MEASURED_FACES = (604, 91_104)
 IMAGE_S = (1 / 25, 1 / 10)
@@ -54,7 +56,7 @@ MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps
 @dataclasses.dataclass(frozen=True)
 class Plan:
     size: str
-    """"cpu" (the shipped configs) or "tiny" (test-size configs)"""
+    """"cpu" (the robust configs, module docstring) or "tiny" (test-size configs)"""
     amlnet_config: str
     zoom_config: str
     refiner_config: str
@@ -134,6 +136,6 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
         raise RhamlError(f"--budget-minutes {budget_minutes:g}: too small to train anything "
                          f"({', '.join(f'{k} {counts[k]} < {MINIMA[k]}' for k in short)}); "
                          f"give at least {need:.0f} minutes")
-    return Plan("cpu", "cpu", "zoom_cpu", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
+    return Plan("cpu", "cpu_heat", "zoom_cpu_luma", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
                 counts["amlnet_steps"], counts["zoom_steps"], counts["refiner_steps"], 32, 32, 16, counts["frames"], 640,
                 EVAL_SETS, budget_minutes, scale, warm_start)

@@ -24,6 +24,8 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.fitting._plan import Plan
 
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
+WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
+REPAINT_PROB = 0.5
 STAGES = ("data", "amlnet", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 
@@ -116,7 +118,8 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
     length = float(model.extents[0])
 
     def data_stage():
-        v2 = SynthConfig(appearance=AppearanceConfig()).scaled(plan.scale)
+        # v3: the v2 appearance randomisation with half the robots repainted (module docstring of _plan)
+        v2 = SynthConfig(appearance=AppearanceConfig(repaint_prob=REPAINT_PROB)).scaled(plan.scale)
         write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
                            workers, cfg=v2)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
@@ -130,14 +133,14 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
                 "--val-every", str(max(1, steps // val_times)), "--ckpt-every", str(max(1, min(250, steps // 4))),
                 "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / stage)
 
-    def warm(shipped: str) -> list[str]:
-        """--init from a shipped network of the same config (Plan.warm_start)."""
-        return ["--init", str(SHIPPED / shipped)] if plan.warm_start else []
+    def warm(config: str) -> list[str]:
+        """--init from the shipped network of `config`, at half the default learning rate (Plan.warm_start)."""
+        return ["--init", str(SHIPPED / WARM_START[config]), "--lr", "5e-4", "--warmup", "100"] if plan.warm_start else []
 
     amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8,  # noqa: E731
-                                 *warm("amlnet_cpu"))
+                                 *warm(plan.amlnet_config))
     zoom_stage = lambda: train("zoom", plan.zoom_config, "train", plan.zoom_steps, plan.zoom_batch, 8, 8,  # noqa: E731
-                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526", *warm("zoom_cpu"))
+                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526", *warm(plan.zoom_config))
     refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
 
     def export_stage():
