@@ -4,7 +4,7 @@ index), trainings continue from their last checkpoint).
 
 DIR/
   fit.json            robot fingerprint, plan, finished stages and their seconds
-  data/train          v2 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
+  data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
   runs/{amlnet,zoom,refiner}                           training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
