@@ -8,11 +8,11 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v2 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.04 s + 0.66 us per mesh face per image (2 processes) | images (7/8 with the robot) |
+| data: v3 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.04 s per image at 604 mesh faces, 0.1 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
 | amlnet: `cpu_heat`, batch 32 | 45 % | 1.0 s per step | steps |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.25 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.6 s per step | steps |
-| evaluation: scenarios, held-out set, evaluate | 18 % | 0.5 s + 7.4 us per mesh face per frame (render + IML + IR) | frames per scenario |
+| evaluation: scenarios, held-out set, evaluate | 18 % | 0.5 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
 
 Rendering cost grows with the robot's mesh, so the data and evaluation rates do: two points
 measured on this machine, the built-in Pioneer (604 faces: 25 training images/s, 2 evaluation

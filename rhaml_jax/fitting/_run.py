@@ -119,11 +119,11 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
     def data_stage():
         # v3: the v2 appearance randomisation with half the robots repainted (module docstring of _plan)
-        v2 = SynthConfig(appearance=AppearanceConfig(repaint_prob=REPAINT_PROB)).scaled(plan.scale)
+        v3 = SynthConfig(appearance=AppearanceConfig(repaint_prob=REPAINT_PROB)).scaled(plan.scale)
         write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
-                           workers, cfg=v2)
+                           workers, cfg=v3)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
-                           plan.refine_images, 0, workers, cfg=v2)
+                           plan.refine_images, 0, workers, cfg=v3)
 
     def train(stage: str, config: str, folder: str, steps: int, batch: int, val_times: int, val_batches: int, *extra):
         """One `train` run in runs/STAGE, resumed if it has checkpoints."""
