@@ -128,3 +128,13 @@ def test_budget_rule():
         make_plan(3)
     assert not make_plan(5, "tiny").warm_start  # test-size networks have no shipped weights
     assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)
+
+
+def test_warm_start_networks_are_shipped_with_the_plans_configs():
+    from rhaml_jax.amlnet import load_model
+    from rhaml_jax.fitting._run import SHIPPED, WARM_START
+
+    p = make_plan(45)
+    for config in (p.amlnet_config, p.zoom_config):
+        net, _, _ = load_model(SHIPPED / WARM_START[config])
+        assert net.cfg.name == config
