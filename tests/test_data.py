@@ -358,3 +358,22 @@ def test_image_cache_keeps_images_within_its_budget():
     none.get(0, lambda: load(0))
     none.get(0, lambda: load(0))
     assert len(none) == 0 and loads[-2:] == [0, 0]
+
+
+def test_one_process_renders_each_robot_with_its_own_mesh(tmp_path):
+    """In-process rendering (workers=1) of two robots one after the other: the second set's
+    masks are the second robot's (its mesh was once cached under the first's)."""
+    import trimesh
+
+    from rhaml_jax.data import load_mask, read_bop
+    from rhaml_jax.robots import load_robot
+
+    m = load_robot("pioneer3dx")
+    small = tmp_path / "small_pioneer.obj"
+    trimesh.Trimesh(np.asarray(m.vertices) * 0.4, np.asarray(m.faces), process=False).export(small)
+    area = {}
+    for robot in ("pioneer3dx", str(small)):
+        out = tmp_path / Path(robot).stem
+        write_scenario(out, "circle", robot, DEFAULT_CAMERA.resized(160, 120), 0, frames=6, workers=1)
+        area[robot] = sum(int(load_mask(f.mask).sum()) for f in read_bop(out) if f.observed)
+    assert area[str(small)] < 0.3 * area["pioneer3dx"]  # 0.4 x the size: 0.16 x the pixels

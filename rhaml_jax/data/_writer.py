@@ -45,10 +45,13 @@ def _worker_init(robot: str, max_faces: int | None):
     from rhaml_jax.robots import load_robot
 
     _WORKER["mesh"] = as_mesh(load_robot(robot, max_faces))
+    _WORKER["key"] = (robot, max_faces)
 
 
 def _mesh(robot, max_faces):
-    if "mesh" not in _WORKER:
+    # keyed by the robot: a process that renders one robot and then another (jobs run in-process
+    # with workers=1) must not draw the second with the first's mesh
+    if _WORKER.get("key") != (robot, max_faces):
         _worker_init(robot, max_faces)
     return _WORKER["mesh"]
 
