@@ -116,18 +116,24 @@ def validate(predict, params, stats, val_source, n_batches: int, cfg, batch: int
     return pose_metrics(pred, np.concatenate(obs), np.concatenate(poses), getattr(cfg, "task", "localize"))
 
 
+WEIGHTLESS_FIELDS = ("luma", "zoom_length_m", "zoom_centre_z_m", "zoom_factor")  # config fields no parameter depends on
+
+
 def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]:
     """(params, batch_stats) of the checkpoint folder `init` (a run or an exported one, e.g.
     `rhaml_jax/checkpoints/amlnet_cpu`), to fine-tune from; it must hold the model `cfg` up to
-    its name and input colours (`luma`, which changes no weight: a colour network can start a
-    luminance one)."""
+    the fields that change no weight: its name, input colours (`luma`: a colour network can start
+    a luminance one) and the zoom crop's geometry (`zoom_length_m`, `zoom_centre_z_m`,
+    `zoom_factor`: one robot's zoom stage can start another's)."""
     if not (Path(init) / "checkpoints").is_dir():
         raise RhamlError(f"--init {init}: not a checkpoint folder (no checkpoints/ inside)")
     net, params, stats = load_model(init)
-    colours = {"luma": cfg.luma} if hasattr(cfg, "luma") else {}
-    if type(net.cfg) is not type(cfg) or replace(net.cfg, name=cfg.name, **colours) != cfg:
-        raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r} ({config_to_dict(net.cfg)}), "
-                         f"not the {cfg.name!r} being trained")
+    free = {k: getattr(cfg, k) for k in WEIGHTLESS_FIELDS if hasattr(cfg, k)}
+    if type(net.cfg) is not type(cfg) or replace(net.cfg, name=cfg.name, **free) != cfg:
+        mine, theirs = config_to_dict(cfg), config_to_dict(net.cfg)
+        differ = sorted(k for k in set(mine) | set(theirs) if k != "name" and k not in free and mine.get(k) != theirs.get(k))
+        raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r}, not the {cfg.name!r} being trained "
+                         f"(they differ in {', '.join(differ) or 'kind'})")
     return params, stats
 
 
