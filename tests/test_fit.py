@@ -122,6 +122,8 @@ def test_budget_rule():
     t = make_plan(45, faces=91_104, scale=0.39)
     assert t.images + t.negatives == int(405 / 0.1 / 1.1) and t.frames == int(0.18 * 2700 / 1.17 / 6)
     assert (t.amlnet_steps, t.scale) == (1215, 0.39)
+    # the refiner renders too: 0.12 s per step at 604 faces, 0.5 s at 91,104
+    assert (q.refiner_steps, t.refiner_steps) == (int(270 / 0.12), int(270 / 0.5))
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     with pytest.raises(RhamlError, match="give at least"):
