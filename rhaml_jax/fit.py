@@ -36,7 +36,7 @@ class Args:
     resume: bool = False
     """continue the run in --out (same robot; its stored plan wins over --budget-minutes)"""
     size: Literal["cpu", "tiny"] = "cpu"
-    """network sizes: cpu (the shipped configs) or tiny (test-size, a smoke run)"""
+    """network sizes: cpu (the robust pair and the refiner at shipped size, rhaml_jax.fitting._plan) or tiny (test-size, a smoke run)"""
     seed: int = 0
     """data and initialisation seed"""
     from_scratch: bool = False
