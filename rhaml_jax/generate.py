@@ -85,8 +85,6 @@ def generate(args: Args) -> dict:
         check_heldout(args.ranges, args.heldout_ranges)  # before any rendering
     if args.workers < 1:
         raise RhamlError(f"--workers must be at least 1, got {args.workers}")
-    if not args.scale > 0:
-        raise RhamlError(f"--scale must be positive, got {args.scale}")
     if args.width < 16 or args.height < 16:
         raise RhamlError(f"--width/--height must be at least 16 px, got {args.width}x{args.height}")
     from rhaml_jax.robots import load_robot

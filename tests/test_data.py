@@ -58,6 +58,8 @@ def test_scaled_scenarios_scale_every_distance_and_no_heading(name):
 def test_scaled_synth_config_scales_the_working_range():
     cfg = data.SynthConfig()
     assert cfg.scaled(1.0) is cfg and cfg.scaled(0.5).depth_m == (0.5, 4.0)
+    with pytest.raises(RhamlError, match="--scale -1"):
+        cfg.scaled(-1.0)
 
 
 def test_odometry_noise_model():

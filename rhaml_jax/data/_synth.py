@@ -25,6 +25,14 @@ from rhaml_jax.render import Mesh, render
 MIN_VISIBLE_PX = 12  # fewer visible robot pixels than this count as "not in view"
 
 
+def check_scale(scale: float) -> None:
+    """RhamlError unless `scale` (every distance of a robot's world, `generate --scale`) is positive."""
+    if not scale > 0:
+        from rhaml_jax.errors import RhamlError
+
+        raise RhamlError(f"--scale {scale}: must be positive")
+
+
 @dataclasses.dataclass(frozen=True)
 class SynthConfig:
     """How training images are drawn.
@@ -52,6 +60,7 @@ class SynthConfig:
     def scaled(self, scale: float) -> "SynthConfig":
         """This config with its working range of depths times `scale` (a smaller robot's world,
         `rhaml_jax.fitting.world_scale`); itself at 1."""
+        check_scale(scale)
         return self if scale == 1.0 else dataclasses.replace(self, depth_m=(self.depth_m[0] * scale, self.depth_m[1] * scale))
 
 

@@ -14,7 +14,7 @@ from rhaml_jax.camera import Camera, T_cam_robot
 from rhaml_jax.data import _trajectories as traj
 from rhaml_jax.data._backdrop import sample_light, sample_room
 from rhaml_jax.data._bop import write_dataset_header, write_frame, write_scene_json
-from rhaml_jax.data._synth import SynthConfig, sample_rng, scenario_frame, scenario_frame_v2, training_sample, training_sample_v2
+from rhaml_jax.data._synth import SynthConfig, check_scale, sample_rng, scenario_frame, scenario_frame_v2, training_sample, training_sample_v2
 from rhaml_jax.data._tum import write_tum
 from rhaml_jax.frames import se3_from_xypsi
 
@@ -220,8 +220,7 @@ def scenario_poses(name: str, frames: int, seed: int, scale: float = 1.0):
     at 1, a smaller robot's world below it (`rhaml_jax.fitting.world_scale`)."""
     from rhaml_jax.errors import RhamlError
 
-    if not scale > 0:
-        raise RhamlError(f"--scale {scale}: must be positive")
+    check_scale(scale)
     k = np.array([scale, scale, 1.0])
     if name in ("circle", "sine"):
         target = (traj.circle(frames) if name == "circle" else traj.sine(frames)) * k

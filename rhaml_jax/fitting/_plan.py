@@ -109,7 +109,7 @@ def world_scale(model) -> float:
     return round(float(max(model.extents[0], model.extents[1])) / PIONEER_LENGTH_M, 2)
 
 
-def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces: int = 604, scale: float = 1.0,
+def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces: int = MEASURED_FACES[0], scale: float = 1.0,
               warm_start: bool = True) -> Plan:
     """The plan for a budget (module docstring) and a robot of `faces` mesh faces and world
     `scale`; RhamlError when it is too small to train anything."""

@@ -88,9 +88,11 @@ def write_report(out: Path, model, plan: Plan) -> Path:
     state = json.loads((out / "fit.json").read_text())
     results = _results(out, plan)
     rows = evaluation_rows(results)
+    from rhaml_jax.data import SynthConfig
     from rhaml_jax.robots import RobotFingerprint
 
     fp = RobotFingerprint.from_dict(state["robot"])
+    depths = SynthConfig().scaled(plan.scale).depth_m
     lines = [f"# fit report: {fp.name}", "",
              f"Robot: {fp.describe()}; {len(model.faces)} faces. Networks: `{out / 'networks'}` "
              f"(`evaluate --amlnet {out / 'networks/amlnet'} --zoom {out / 'networks/zoom'} --refiner {out / 'networks/refiner'}`).",
@@ -99,7 +101,7 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              f"{plan.negatives} without at {plan.width} x {plan.height}; AMLNet `{plan.amlnet_config}` {plan.amlnet_steps} "
              f"steps of {plan.amlnet_batch}, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
              f"{plan.refiner_steps} steps; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
-             f"Distances x {plan.scale:g} of the Pioneer's (training depths {1.0 * plan.scale:.2f}-{8.0 * plan.scale:.2f} m, "
+             f"Distances x {plan.scale:g} of the Pioneer's (training depths {depths[0]:.2f}-{depths[1]:.2f} m, "
              f"circle radius {2.0 * plan.scale:.2f} m about {4.5 * plan.scale:.2f} m ahead); AMLNet and zoom "
              + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else "trained from random weights."),
              "", "| stage | seconds |", "| --- | --- |"]
