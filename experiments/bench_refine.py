@@ -1,5 +1,6 @@
-"""Refinement benchmark: silhouette alignment (and, with --refiner, the learned iterations) on
-BOP scenarios, from (a) ground truth + the paper's noise and (b) the shipped IML's estimates.
+"""Refinement benchmark: silhouette alignment (and, with --refiner, the learned iterations; with
+--scorer too, the heading search) on BOP scenarios, from (a) ground truth + the paper's noise and
+(b) the shipped IML's estimates.
 
   python experiments/bench_refine.py --data /work/data/circle /work/data/sine \
       --iml-json /work/data/iml_circle.json /work/data/iml_sine.json --stride 5 --json out.json
@@ -26,7 +27,7 @@ import tyro
 
 from rhaml_jax import allocator, data, metrics, render
 from rhaml_jax import crop as _crop
-from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_segmenter, refine
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_scorer, load_segmenter, refine
 from rhaml_jax.refine.segmenter import alignment_target
 from rhaml_jax.refine.alignment import align_to, crop_box
 
@@ -58,6 +59,10 @@ class Args:
     """only this BOP split (e.g. val of a training set: where thresholds are chosen)"""
     refiner: Path | None = None
     """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
+    align_predicted: bool = False
+    """with --refiner: also run the alignment to the refiner's predicted mask (measured worse: BENCHMARKS.md)"""
+    scorer: Path | None = None
+    """with --refiner: a heading scorer checkpoint (`train --stage scorer`): the heading search after the learned iterations"""
     segmenter: Path | None = None
     """a segmenter checkpoint (`train --stage segmenter`): also run the alignment to its masks of the images"""
     oracle: bool = True
@@ -76,31 +81,41 @@ def summary(est, gt, ms=None) -> dict:
     return s
 
 
-def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame) -> list[dict]:
-    """Rows after each learned iteration and after the alignment to the predicted mask."""
-    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=None)))
+def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None) -> list[dict]:
+    """Rows after each learned iteration (with a scorer: then after the heading search and the
+    post iterations) and, with --align-predicted, after the alignment to the predicted mask."""
+    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=None), scorer=sc))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
-    its, est, ms_it, ms_all = [], [], [], []
+    its, est, ms_it, ms_all, flip_prob = [], [], [], [], []
     for j, fr in enumerate(frames):
         im = jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255
         args = (im, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
         if j == 0:
-            jax.block_until_ready((f_it(*args), f_all(*args)))
+            jax.block_until_ready(f_it(*args))
         t = time.perf_counter()
         r1 = jax.block_until_ready(f_it(*args))
         ms_it.append(1e3 * (time.perf_counter() - t))
-        t = time.perf_counter()
-        r2 = jax.block_until_ready(f_all(*args))
-        ms_all.append(1e3 * (time.perf_counter() - t))
-        its.append(np.asarray(r1.iterates)); est.append(np.asarray(r2.xypsi))
-    its, est = np.stack(its), np.stack(est)
-    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "learned_aligned": est.tolist()})
+        its.append(np.asarray(r1.iterates)); flip_prob.append(float(r1.flip_prob))
+        if a.align_predicted:
+            if j == 0:
+                jax.block_until_ready(f_all(*args))
+            t = time.perf_counter()
+            est.append(np.asarray(jax.block_until_ready(f_all(*args)).xypsi))
+            ms_all.append(1e3 * (time.perf_counter() - t))
+    its = np.stack(its)
+    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "flip_prob": flip_prob,
+                      **({"learned_aligned": np.stack(est).tolist()} if est else {})})
+    n_iter = ref.cfg.n_iter
+    names = ["start"] + [f"learned iteration {k}" for k in range(1, n_iter + 1)]
+    if sc is not None:
+        names += ["heading search (scorer)"] + [f"post iteration {k}" for k in range(1, its.shape[1] - n_iter - 1)]
     rows = []
-    for k in range(0, its.shape[1]):
-        rows.append({"start": name, "stage": f"learned iteration {k}" if k else "start", "frames": len(gt), "stride": a.stride,
+    for k, stage in enumerate(names):
+        rows.append({"start": name, "stage": stage, "frames": len(gt), "stride": a.stride,
                      **summary(its[:, k], gt, ms_it if k == its.shape[1] - 1 else None)})
-    rows.append({"start": name, "stage": "learned + alignment (predicted mask)", "frames": len(gt), "stride": a.stride,
-                 **summary(est, gt, ms_all)})
+    if est:
+        rows.append({"start": name, "stage": "learned + alignment (predicted mask)", "frames": len(gt), "stride": a.stride,
+                     **summary(np.stack(est), gt, ms_all)})
     for r in rows:
         print(json.dumps(r), flush=True)
     return rows
@@ -160,10 +175,11 @@ def main(a: Args) -> list[dict]:
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
+    sc = None if a.scorer is None else load_scorer(a.scorer, data.load_bop_model(a.data[0]))
     for name in [n for n in a.starts if n in starts]:  # iml only with --iml-json
         init = starts[name]
         if ref is not None:
-            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame)
+            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame, sc)
         kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
         for kind in kinds:
             est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init,

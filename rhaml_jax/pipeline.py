@@ -171,13 +171,14 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
     def one(frame):
         image, K, xypsi = frame
         return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
-                             segmenter=p.segmenter)
+                             segmenter=p.segmenter, scorer=p.scorer)
 
     out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
     keep = detected & ~out.declined
     pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
-    # the alignment's margin over the other-facing hypothesis (0 when it did not run) lowers the flip doubt
-    flip = est.flip_prob * (1.0 - out.flip_confidence)
+    # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the
+    # alignment's margin over the other-facing hypothesis (0 when it did not run) lowers IML's doubt
+    flip = jnp.where(out.flip_prob >= 0, out.flip_prob, est.flip_prob * (1.0 - out.flip_confidence))
     return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(flip, est.flip_prob), pick(out.roll_pitch, est.roll_pitch))
 
 

@@ -5,6 +5,7 @@
   python -m rhaml_jax.train --stage zoom --config zoom_cpu --data DIR --out runs/zoom_cpu
   python -m rhaml_jax.train --stage refiner --config refiner_cpu --data DIR --out runs/refiner_cpu [--resume]
   python -m rhaml_jax.train --stage segmenter --config segmenter_cpu --data DIR --out runs/segmenter_cpu [--resume]
+  python -m rhaml_jax.train --stage scorer --config scorer_cpu --data DIR --out runs/scorer_cpu [--resume]
 
 Without --data the training images are generated on the fly by `rhaml_jax.data`; with --data
 they are read from a BOP folder (also through `rhaml_jax.data`).  The run folder receives
@@ -31,10 +32,10 @@ __all__ = ["Args", "main", "amlnet_sources", "zoom_sources", "train_refiner"]
 
 @dataclass(frozen=True)
 class Args:
-    stage: Literal["amlnet", "zoom", "refiner", "segmenter"]
-    """which network: the AMLNet initial localiser, its zoom-in stage (needs --data), the iterative refiner or the observed-mask segmenter of the silhouette alignment"""
+    stage: Literal["amlnet", "zoom", "refiner", "segmenter", "scorer"]
+    """which network: the AMLNet initial localiser, its zoom-in stage (needs --data), the iterative refiner, the observed-mask segmenter of the silhouette alignment or the refinement's heading scorer"""
     config: str
-    """model config name (e.g. paper, cpu, cpu_k0, frontnet, zoom_cpu: rhaml_jax.amlnet.config; refiner_cpu: rhaml_jax.refine.net; segmenter_cpu: rhaml_jax.refine.segmenter)"""
+    """model config name (e.g. paper, cpu, cpu_k0, frontnet, zoom_cpu: rhaml_jax.amlnet.config; refiner_cpu: rhaml_jax.refine.net; segmenter_cpu: rhaml_jax.refine.segmenter; scorer_cpu: rhaml_jax.refine.scorer)"""
     out: Path
     """run folder: checkpoints/, metrics.jsonl, metrics.png"""
     robot: str = "pioneer3dx"
@@ -97,8 +98,8 @@ def zoom_sources(args: Args, cfg):
 
 
 def train_refiner(args: Args) -> dict:
-    """--stage refiner / segmenter: a refinement-stage network on a BOP set (crops around drawn
-    initial poses, rhaml_jax.refine.train / .segmenter); the checkpoint stores the config and the
+    """--stage refiner / segmenter / scorer: a refinement-stage network on a BOP set (crops around drawn
+    initial poses, rhaml_jax.refine.train / .segmenter / .scorer); the checkpoint stores the config and the
     robot's fingerprint."""
     from rhaml_jax.data import load_bop_model
     from rhaml_jax.training import fit
@@ -115,6 +116,11 @@ def train_refiner(args: Args) -> dict:
 
         cfg = get_refiner_config(args.config)
         make_task = lambda val: refiner_task(cfg, tc, model, model, val)  # noqa: E731
+    elif args.stage == "scorer":
+        from rhaml_jax.refine.scorer import ScorerSource as Source, get_scorer_config, scorer_task
+
+        cfg = get_scorer_config(args.config)
+        make_task = lambda val: scorer_task(cfg, tc, model, val)  # noqa: E731
     else:
         from rhaml_jax.refine.segmenter import SegmenterSource as Source, get_segmenter_config, segmenter_task
 
@@ -131,7 +137,7 @@ def train_refiner(args: Args) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
-    if args.stage in ("refiner", "segmenter"):
+    if args.stage in ("refiner", "segmenter", "scorer"):
         if args.init is not None:
             raise RhamlError(f"--init: fine-tuning is for --stage amlnet and zoom; the {args.stage} starts from its own initialisation")
         return train_refiner(args)

@@ -25,17 +25,19 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 
 from rhaml_jax import crop as _crop
 from rhaml_jax import frames, render
 from rhaml_jax.camera import T_cam_robot
 from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, align_to, check_init
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
+from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
 __all__ = ["load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -58,6 +60,10 @@ class RefineConfig:
     refiner the alignment always runs (AlignConfig() when None)"""
     n_iter: int | None = None
     """learned iterations (None: the refiner's config, 4)"""
+    flip_threshold: float = 0.5
+    """the scorer turns the heading by about 180 deg only if its softmax mass on the other side exceeds this"""
+    post_iter: int = 1
+    """learned iterations after the scorer's heading search (the position, re-read at the new heading)"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
@@ -72,7 +78,9 @@ class RefineResult(NamedTuple):
     declined: jax.Array  # () bool: the initial pose is behind the camera / projects outside the image
     flip_confidence: jax.Array  # () the alignment's margin over the best other-facing hypothesis, [0, 1]
     score: jax.Array  # () the alignment's final loss (0 without alignment)
-    iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one)
+    iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one);
+    #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations
+    flip_prob: jax.Array  # () the scorer's probability that the heading faces the other way (-1: no scorer ran)
 
 
 def _T_cam(xypsi, h):
@@ -86,11 +94,13 @@ def _corners(mesh):
 
 
 def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None,
-           segmenter: Segmenter | None = None) -> RefineResult:
+           segmenter: Segmenter | None = None, scorer: Scorer | None = None) -> RefineResult:
     """Refines the planar estimate `init_xypsi` (3,) of the robot seen in `image` (H, W, 3)
     float32 in [0, 1] through intrinsics K (3, 3).
 
-    With a refiner: n_iter learned iterations (re-rendering at each new pose). Then the silhouette
+    With a refiner: n_iter learned iterations (re-rendering at each new pose); with a `scorer`
+    too, then the heading search (`refine.scorer`: the best of rendered heading hypotheses, flips
+    included) and cfg.post_iter more learned iterations at the new heading. Then the silhouette
     alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
     image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
     else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
@@ -115,26 +125,32 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     roll_pitch = jnp.zeros(2, jnp.float32)
     xyp = safe
     target = box = None
+    flip_prob = jnp.float32(-1.0)
+    conf = jnp.float32(0.0)
     if refiner is not None:
         rc = refiner.cfg
         n_iter = rc.n_iter if cfg.n_iter is None else cfg.n_iter
-        T = _T_cam(safe, h)
         corners = _corners(mesh)
         T_back = T_cam_robot(h).inverse()
 
-        def step(T):
-            bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
-            obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
-            x = render_input(mesh, rc, obs[None], T, K, bx)  # (1, S, S, 7)
-            return N.apply(rc, refiner.params, x), bx
+        def learned(xyp, n):
+            """n learned iterations from the planar pose xyp: (planar pose, roll and pitch)."""
+            T = _T_cam(xyp, h)
+            for _ in range(n):
+                T1 = jaxlie.SE3(T.wxyz_xyz[None])
+                bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
+                obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
+                out = N.apply(rc, refiner.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7) input
+                T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
+                iterates.append(frames.xypsi_from_se3(T_back @ T))
+            return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2]
 
-        for _ in range(n_iter):
-            out, bx = step(jaxlie.SE3(T.wxyz_xyz[None]))
-            T = jaxlie.SE3(N.apply_update(jaxlie.SE3(T.wxyz_xyz[None]), out.update, K, bx).wxyz_xyz[0])
-            iterates.append(frames.xypsi_from_se3(T_back @ T))
-        T_obs = T_back @ T
-        xyp = frames.xypsi_from_se3(T_obs)
-        roll_pitch = frames.roll_pitch_yaw(T_obs)[:2]
+        xyp, roll_pitch = learned(safe, n_iter)
+        if scorer is not None:
+            xyp, flip_prob, conf = _heading_search(scorer, mesh, image, K, xyp, h, cfg.flip_threshold)
+            iterates.append(xyp)
+            if cfg.post_iter:
+                xyp, roll_pitch = learned(xyp, cfg.post_iter)
         if acfg is not None and segmenter is None:  # the mask head at the final pose, in the alignment's crop
             box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
             obs = _crop.crop_image(image, box, rc.crop, rc.crop)
@@ -145,7 +161,6 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     elif mask is None and segmenter is None:
         raise RhamlError("refine: without a refiner, pass the observed mask (mask=...) or a segmenter for the alignment")
     score = jnp.float32(0.0)
-    conf = jnp.float32(0.0)
     if acfg is not None:
         if segmenter is not None:
             r = align_to(mesh, lambda b: alignment_target(segmenter, image, b, acfg.crop, cfg.mask_threshold), K, xyp,
@@ -162,7 +177,29 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     T = jaxlie.SE3.from_rotation_and_translation(
         jaxlie.SO3.from_rpy_radians(roll_pitch[0], roll_pitch[1], xyp[2]),
         jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
-    return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(declined, 0.0, conf), score, its)
+    return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(declined, 0.0, conf), score, its,
+                        jnp.where(declined, -1.0, flip_prob))
+
+
+def _heading_search(scorer: Scorer, mesh, image, K, xyp, h, flip_threshold: float):
+    """The scorer's heading at the position of xyp (3,): (planar pose, flip probability, flip
+    confidence). Straight-through in the heading (d result / d xyp = identity): the search is an
+    argmax."""
+    from rhaml_jax.refine import scorer as S
+
+    sc = scorer.cfg
+    box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ _corners(mesh), margin=sc.margin))
+    obs = _crop.crop_image(image, box, sc.crop, sc.crop)
+    pos = jax.lax.stop_gradient(xyp[:2])
+
+    def score(headings):
+        T = jax.vmap(lambda p: _T_cam(jnp.concatenate([pos, p[None]]), h).wxyz_xyz)(headings)
+        return S.apply(sc, scorer.params, S.score_input(mesh, sc, obs, jaxlie.SE3(T), K, box))
+
+    r = S.search_heading(score, jax.lax.stop_gradient(xyp[2]), sc.grid, sc.fine, float(np.deg2rad(sc.fine_step_deg)),
+                         flip_threshold)
+    turn = jax.lax.stop_gradient(jnp.arctan2(jnp.sin(r.psi - xyp[2]), jnp.cos(r.psi - xyp[2])))
+    return xyp.at[2].add(turn), 1.0 - r.flip_confidence, jnp.clip(2.0 * r.flip_confidence - 1.0, 0.0, 1.0)
 
 
 def load_refiner(ckpt_dir: str | Path, model=None) -> Refiner:
@@ -195,16 +232,17 @@ class StageParams(NamedTuple):
     refiner: Refiner | None  # the learned refiner
     mesh: render.Mesh  # the robot's model
     segmenter: Segmenter | None = None  # the alignment's observed-mask network (None: no alignment)
+    scorer: Scorer | None = None  # the heading scorer (None: the learned iterations keep the heading)
 
 
 def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
-               segmenter: str | Path | None = None):
+               segmenter: str | Path | None = None, scorer: str | Path | None = None):
     """The pipeline's IR stage: (RefineConfig, StageParams) for `pipeline.PipelineModel.refiner`
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
     refiner_cpu; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
-    silhouette alignment to its masks."""
+    silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
@@ -213,4 +251,5 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     check = robot if check_robot else None
     refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
-    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg)
+    sc = None if scorer is None else load_scorer(scorer, check)
+    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc)

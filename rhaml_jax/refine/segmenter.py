@@ -199,59 +199,22 @@ class SegmenterSource(CropSource):
 
 
 def check_segmenter_batch(cfg: SegmenterConfig, b, size: int, where: str) -> None:
+    from rhaml_jax.refine._task import check_fields
+
     S = cfg.crop
-    if not isinstance(b, tuple) or len(b) != 2:
-        raise RhamlError(f"{where}: expected a SegmenterBatch, got {type(b).__name__}")
-    for name, shape, a in zip(("crop", "mask"), ((size, S, S, 3), (size, S, S)), b):
-        if np.shape(a) != shape:
-            raise RhamlError(f"{where}.{name}: expected shape {shape}, got {np.shape(a)}")
+    check_fields(b, {"crop": (size, S, S, 3), "mask": (size, S, S)}, "SegmenterBatch", where)
 
 
 def segmenter_task(cfg: SegmenterConfig, tc, model, val_source=None, num_devices=None):
     """(the `rhaml_jax.training.Task` of the segmenter, its shardings); `model`: the RobotModel
     whose fingerprint the checkpoints store."""
-    from rhaml_jax.amlnet.steps import make_optimizer, make_schedule
-    from rhaml_jax.refine.train import check_robot
-    from rhaml_jax.robots import fingerprint
-    from rhaml_jax.training import Task, devices, mesh_shardings
+    from rhaml_jax.refine._task import network_task
 
-    devs = devices(num_devices)
-    if tc.batch % len(devs):
-        raise RhamlError(f"--batch {tc.batch}: must be a multiple of the {len(devs)} devices")
-    rep, bat = mesh_shardings(devs)
-    tx = make_optimizer(tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip)
-
-    def grad_step(params, stats, crop, target, key):
-        (loss, parts), grads = jax.value_and_grad(lambda p: segmenter_loss(cfg, p, crop, target), has_aux=True)(params)
-        return loss, parts, stats, grads
-
-    def update(params, opt_state, grads):
-        import optax
-
-        upd, opt_state = tx.update(grads, opt_state, params)
-        return optax.apply_updates(params, upd), opt_state
-
-    # grad and update jitted apart: fused, XLA's CPU backend ran such steps several times slower (DESIGN.md section 8)
-    gs = jax.jit(grad_step, in_shardings=(rep, rep, bat, bat, rep), out_shardings=rep)
-    up = jax.jit(update, donate_argnums=(0, 1), in_shardings=(rep, rep, rep), out_shardings=rep)
-    ev = jax.jit(lambda params, crop, target: segmenter_loss(cfg, params, crop, target)[1])
-
-    def validate(params, stats, put):
-        rows = [ev(params, *(put(x) for x in val_source(i))) for i in range(tc.val_batches)]
-        return {k: float(np.mean([float(r[k]) for r in rows])) for k in rows[0]}
-
-    meta = {"model_config": config_to_dict(cfg), "kind": "segmenter", "robot": fingerprint(model).to_dict()}
-
-    def check_resume(stored, where):
-        if stored.get("kind") != "segmenter" or config_from_dict(stored["model_config"]) != cfg:
-            raise RhamlError(f"{where}: checkpoint holds another model ({stored.get('model_config', {}).get('name')!r}), not {cfg.name!r}")
-        check_robot(stored, model, where)
-
-    task = Task(name=cfg.name, params=init_params(cfg, jax.random.key(tc.seed)), batch_stats={}, opt_init=tx.init,
-                grad_step=gs, update=up, schedule=make_schedule(tc.lr, tc.steps, tc.warmup), meta=meta,
-                check_resume=check_resume, check_batch=lambda b, where: check_segmenter_batch(cfg, b, tc.batch, where),
-                validate=None if val_source is None else validate)
-    return task, (rep, bat)
+    return network_task("segmenter", cfg, tc, model, init_params=init_params, config_to_dict=config_to_dict,
+                        config_from_dict=config_from_dict,
+                        loss=lambda params, crop, target: segmenter_loss(cfg, params, crop, target), n_fields=2,
+                        check_batch=lambda b, size, where: check_segmenter_batch(cfg, b, size, where),
+                        val_source=val_source, num_devices=num_devices)
 
 
 # ------------------------------------------------------------------------------ checkpoints

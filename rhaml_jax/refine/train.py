@@ -85,6 +85,10 @@ class CropSource:
         both = self._cache.get(i, lambda: np.concatenate([load_rgb(f.rgb), (load_mask(f.mask)[..., None] * 255).astype(np.uint8)], -1))
         return both[..., :3], both[..., 3]  # (H, W, 3) RGB, (H, W) mask
 
+    def initial(self, xypsi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(3,) the estimate the crop is centred on (drawn first): `initial_pose`."""
+        return initial_pose(xypsi, rng)
+
     def margin(self, rng: np.random.Generator) -> float:
         """The crop box's margin (drawn after the initial pose)."""
         return self.cfg.margin
@@ -95,7 +99,7 @@ class CropSource:
         i = index % len(self.frames)
         f = self.frames[i]
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, index]))
-        init = initial_pose(f.xypsi, rng)
+        init = self.initial(f.xypsi, rng)
         margin = self.margin(rng)
         T_obs = np.eye(4)
         c, s = np.cos(init[2]), np.sin(init[2])
@@ -125,14 +129,11 @@ class RefinerSource(CropSource):
 
 
 def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str) -> None:
+    from rhaml_jax.refine._task import check_fields
+
     S = cfg.crop
-    shapes = {"obs": (size, S, S, 3), "obs_mask": (size, S, S), "box": (size, 4), "K": (size, 3, 3),
-              "T_init": (size, 7), "T_gt": (size, 7)}
-    if not isinstance(b, tuple) or len(b) != 6:
-        raise RhamlError(f"{where}: expected a RefinerBatch, got {type(b).__name__}")
-    for (name, shape), a in zip(shapes.items(), b):
-        if np.shape(a) != shape:
-            raise RhamlError(f"{where}.{name}: expected shape {shape}, got {np.shape(a)}")
+    check_fields(b, {"obs": (size, S, S, 3), "obs_mask": (size, S, S), "box": (size, 4), "K": (size, 3, 3),
+                     "T_init": (size, 7), "T_gt": (size, 7)}, "RefinerBatch", where)
 
 
 def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box):
@@ -160,50 +161,15 @@ def refiner_loss(cfg: N.RefinerConfig, mesh, points, params, b):
 def refiner_task(cfg: N.RefinerConfig, tc, mesh, model, val_source=None, num_devices=None):
     """(the `rhaml_jax.training.Task` of the refiner, its shardings). `model`: the RobotModel
     (its name and extents are stored, so that a checkpoint of another robot is refused)."""
-    from rhaml_jax.amlnet.steps import make_optimizer, make_schedule
-    from rhaml_jax.training import Task, devices, mesh_shardings
+    from rhaml_jax.refine._task import network_task
 
-    devs = devices(num_devices)
-    if tc.batch % len(devs):
-        raise RhamlError(f"--batch {tc.batch}: must be a multiple of the {len(devs)} devices")
-    rep, bat = mesh_shardings(devs)
-    tx = make_optimizer(tc.lr, tc.steps, tc.weight_decay, tc.warmup, tc.clip)
     points = jnp.asarray(model.sample_surface(cfg.n_points, seed=0))
     mesh = render.as_mesh(mesh)
-
-    def grad_step(params, stats, *rest):
-        b, key = rest[:6], rest[6]
-        (loss, parts), grads = jax.value_and_grad(lambda p: refiner_loss(cfg, mesh, points, p, b), has_aux=True)(params)
-        return loss, parts, stats, grads
-
-    def update(params, opt_state, grads):
-        import optax
-
-        upd, opt_state = tx.update(grads, opt_state, params)
-        return optax.apply_updates(params, upd), opt_state
-
-    gs = jax.jit(grad_step, in_shardings=(rep, rep) + (bat,) * 6 + (rep,), out_shardings=rep)
-    up = jax.jit(update, donate_argnums=(0, 1), in_shardings=(rep, rep, rep), out_shardings=rep)
-    ev = jax.jit(lambda params, *b: refiner_loss(cfg, mesh, points, params, b)[1])
-
-    def validate(params, stats, put):
-        rows = [ev(params, *(put(x) for x in val_source(i))) for i in range(tc.val_batches)]
-        return {k: float(np.mean([float(r[k]) for r in rows])) for k in rows[0]}
-
-    from rhaml_jax.robots import fingerprint
-
-    meta = {"model_config": N.config_to_dict(cfg), "kind": "refiner", "robot": fingerprint(model).to_dict()}
-
-    def check_resume(stored, where):
-        if stored.get("kind") != "refiner" or N.config_from_dict(stored["model_config"]) != cfg:
-            raise RhamlError(f"{where}: checkpoint holds another model ({stored.get('model_config', {}).get('name')!r}), not {cfg.name!r}")
-        check_robot(stored, model, where)
-
-    task = Task(name=cfg.name, params=N.init_params(cfg, jax.random.key(tc.seed)), batch_stats={}, opt_init=tx.init,
-                grad_step=gs, update=up, schedule=make_schedule(tc.lr, tc.steps, tc.warmup), meta=meta,
-                check_resume=check_resume, check_batch=lambda b, where: check_refiner_batch(cfg, b, tc.batch, where),
-                validate=None if val_source is None else validate)
-    return task, (rep, bat)
+    return network_task("refiner", cfg, tc, model, init_params=N.init_params, config_to_dict=N.config_to_dict,
+                        config_from_dict=N.config_from_dict,
+                        loss=lambda params, *b: refiner_loss(cfg, mesh, points, params, b), n_fields=6,
+                        check_batch=lambda b, size, where: check_refiner_batch(cfg, b, size, where),
+                        val_source=val_source, num_devices=num_devices)
 
 
 def check_robot(meta: dict, model, where: str) -> None:

@@ -1,0 +1,303 @@
+"""The heading scorer: a learned render-and-compare verifier that chooses the robot's heading
+among hypotheses rendered side by side (after MegaPose's coarse scoring), so that refinement
+resolves front/back flips and sets the heading to about a degree.
+
+Why: the learned refiner's rotation output does not learn the sign of a heading error
+(BENCHMARKS.md, "Refinement"), and a flip (180 deg) is beyond any regressed update. Comparing
+renders is easier than regressing a turn: the scorer sees the observed crop beside one render
+and says how well they agree; a softmax over a crop's hypotheses, trained with soft targets
+(a Gaussian of each hypothesis' heading error), makes its logits peaked and smooth in the heading,
+so the best of a coarse grid plus a parabola through its neighbours gives the heading between
+grid points.
+
+Input per hypothesis (S, S, 3): the observed crop's luminance, the render's luminance and the
+render's mask (no hue: a repainted robot must score alike). One crop box for every hypothesis of
+a frame: the model's box at the estimate (`crop.object_box`) times `margin`.
+
+Test time (`search_heading`): `grid` headings evenly spaced from the estimate's; the side
+(facing as the estimate or the other way) with the larger softmax mass, the other way only if its
+mass reaches a threshold (`RefineConfig.flip_threshold`: a converged estimate is not turned on a
+doubt); the best heading on that side, then `fine` headings spaced `fine_step_deg` around it, each
+peak refined by a parabola. The flip confidence is the coarse softmax's mass within 90 deg of
+the answer.
+
+Pure functions over a params pytree; the `Scorer` pytree (params + static cfg) passes through
+jit / vmap like `refine.Refiner`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from rhaml_jax import render
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.refine.net import _conv, _conv_init, json_safe
+from rhaml_jax.refine.train import CropSource, _se3_params
+
+__all__ = ["ScorerConfig", "SCORER_CONFIGS", "get_scorer_config", "Scorer", "init_params", "apply", "score_input",
+           "scorer_loss", "ScorerBatch", "ScorerSource", "scorer_task", "HeadingSearch", "search_heading",
+           "train_offsets_deg", "load_scorer", "export_scorer"]
+
+_LUMA = (0.299, 0.587, 0.114)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScorerConfig:
+    name: str = "scorer_cpu"
+    crop: int = 64
+    """input side (px)"""
+    widths: tuple[int, ...] = (32, 64, 96, 128)
+    """stride-2 3x3 conv stages"""
+    hidden: int = 128
+    """fully connected layer before the score"""
+    margin: float = 1.4
+    """crop box = projected model box at the estimate times this (DeepIM)"""
+    sigma_deg: float = 7.5
+    """training target: softmax over a crop's hypotheses of -err^2 / (2 sigma^2)"""
+    pos_sigma_m: float = 0.04
+    """training estimates: position noise along and across the line of sight (the refiner's residual)"""
+    grid: int = 24
+    """test time: coarse headings, evenly spaced over the circle (15 deg apart)"""
+    fine: int = 5
+    """test time: headings around the coarse peak"""
+    fine_step_deg: float = 5.0
+    """their spacing"""
+
+
+SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
+                  "scorer_micro": ScorerConfig(name="scorer_micro", crop=32, widths=(8, 16), hidden=16, grid=8, fine=3)}
+
+
+def get_scorer_config(name: str) -> ScorerConfig:
+    if name not in SCORER_CONFIGS:
+        raise RhamlError(f"--config {name!r}: not a scorer config (known: {', '.join(SCORER_CONFIGS)})")
+    return SCORER_CONFIGS[name]
+
+
+def config_to_dict(cfg: ScorerConfig) -> dict:
+    return json_safe(dataclasses.asdict(cfg))
+
+
+def config_from_dict(d: dict) -> ScorerConfig:
+    fields = {f.name for f in dataclasses.fields(ScorerConfig)}
+    return ScorerConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+
+
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
+@dataclasses.dataclass(frozen=True)
+class Scorer:
+    """A trained scorer: params (pytree leaves) and its static config (pytree metadata)."""
+
+    params: dict
+    cfg: ScorerConfig
+
+
+# ------------------------------------------------------------------------------ the network
+
+
+def init_params(cfg: ScorerConfig, key) -> dict:
+    keys = jax.random.split(key, len(cfg.widths) + 2)
+    convs, cin = [], 3
+    for i, c in enumerate(cfg.widths):
+        convs.append(_conv_init(keys[i], 3, cin, c))
+        cin = c
+    side = cfg.crop // 2 ** len(cfg.widths)
+    flat = side * side * cin
+    fc = {"w": jax.random.normal(keys[-2], (flat, cfg.hidden)) * np.sqrt(2.0 / flat), "b": jnp.zeros((cfg.hidden,))}
+    out = {"w": jnp.zeros((cfg.hidden, 1)), "b": jnp.zeros((1,))}  # zero init: every hypothesis alike at first
+    return {"convs": convs, "fc": fc, "out": out}
+
+
+def apply(cfg: ScorerConfig, params: dict, x):
+    """x (..., S, S, 3) in [0, 1] -> score logits (...,)."""
+    lead = x.shape[:-3]
+    h = x.reshape((-1,) + x.shape[-3:]) * 2.0 - 1.0
+    for p in params["convs"]:
+        h = jax.nn.gelu(_conv(h, p, 2))
+    z = jax.nn.gelu(h.reshape(h.shape[0], -1) @ params["fc"]["w"] + params["fc"]["b"])
+    return (z @ params["out"]["w"] + params["out"]["b"])[:, 0].reshape(lead)
+
+
+def score_input(mesh, cfg: ScorerConfig, obs, T_cam: jaxlie.SE3, K, box):
+    """(H, S, S, 3) scorer input for H hypotheses T_cam (H,) of one crop: obs (S, S, 3) RGB in
+    [0, 1], K (3, 3), box (4,). The render is an input (no gradient), as the refiner's."""
+    S = cfg.crop
+    H = T_cam.wxyz_xyz.shape[0]
+    w = jnp.asarray(_LUMA, obs.dtype)
+    out = render.render(mesh, T_cam, jnp.broadcast_to(K, (H, 3, 3)), S, S, box=jnp.broadcast_to(box, (H, 4)))
+    rend = jax.lax.stop_gradient(jnp.stack([out.rgb @ w, out.mask.astype(obs.dtype)], -1))
+    o = jnp.broadcast_to((obs @ w)[None, ..., None], (H, S, S, 1))
+    return jnp.concatenate([o, rend], -1)
+
+
+# ------------------------------------------------------------------------------ training
+
+
+def train_offsets_deg(cfg: ScorerConfig) -> np.ndarray:
+    """The training hypotheses' headings relative to a drawn one near the truth: the coarse
+    grid's neighbours (+-1, +-2 steps), the flip and its neighbours, so that the softmax
+    contrasts a turn to the left with one to the right and the front with the back."""
+    step = 360.0 / cfg.grid
+    return np.array([0.0, step, -step, 2 * step, -2 * step, 180.0, 180.0 + step, 180.0 - step])
+
+
+class ScorerBatch(NamedTuple):
+    obs: np.ndarray  # (B, S, S, 3) float32 [0, 1] observed crop
+    box: np.ndarray  # (B, 4) crop box, full-image px
+    K: np.ndarray  # (B, 3, 3)
+    T_hyp: np.ndarray  # (B, H, 7) T_cam_model wxyz_xyz of each hypothesis
+    err: np.ndarray  # (B, H) float32 heading error of each hypothesis (rad, wrapped)
+
+
+class ScorerSource(CropSource):
+    """batch(step) of B examples (a pure function of (seed, step)): a frame of a BOP set, an
+    estimate at the true position plus N(0, pos_sigma_m) along and across the line of sight with a
+    heading drawn near the truth (uniform within half a grid step) or anywhere (one time in four),
+    its crop, and the hypotheses: that heading plus `train_offsets_deg`."""
+
+    def initial(self, xypsi, rng):
+        x, y, psi = xypsi
+        r, b = np.hypot(x, y), np.arctan2(y, x)
+        s = self.cfg.pos_sigma_m
+        along, across = rng.normal(0, s), rng.normal(0, s)
+        r = max(r + along, 0.3)
+        b = b + across / max(np.hypot(x, y), 0.3)
+        half = np.pi / self.cfg.grid
+        dpsi = rng.uniform(-half, half) if rng.random() < 0.75 else rng.uniform(-np.pi, np.pi)
+        return np.array([r * np.cos(b), r * np.sin(b), psi + dpsi])
+
+    def example(self, index: int):
+        f, T_init, box, obs, _ = self.drawn(index)
+        offs = np.deg2rad(train_offsets_deg(self.cfg))
+        c, s = np.cos(offs), np.sin(offs)
+        Rz = np.zeros((len(offs), 4, 4))
+        Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1] = c, -s, s, c
+        Rz[:, 2, 2] = Rz[:, 3, 3] = 1
+        T_hyp = T_init[None] @ Rz  # the heading turned about the robot's own vertical axis
+        # heading error of each hypothesis: the rotation between hypothesis and truth about the robot's vertical
+        R_rel = np.einsum("ji,hjk->hik", f.T_m2c[:3, :3], T_hyp[:, :3, :3])
+        err = np.arctan2(R_rel[:, 1, 0], R_rel[:, 0, 0])
+        return (obs, box.astype(np.float32), f.K.astype(np.float32), np.stack([_se3_params(T) for T in T_hyp]),
+                err.astype(np.float32))
+
+    def __call__(self, step: int) -> ScorerBatch:
+        ex = [self.example(step * self.batch + j) for j in range(self.batch)]
+        return ScorerBatch(*(np.stack([e[k] for e in ex]) for k in range(5)))
+
+
+def scorer_loss(cfg: ScorerConfig, mesh, params, b):
+    """Softmax cross-entropy over each crop's hypotheses against soft targets, and metrics:
+    `top1` (the best-scored hypothesis is the one nearest the truth), `flip` (it faces the other
+    way, |error| > 90 deg), `err_deg` (its |heading error|)."""
+    obs, box, K, T_hyp, err = b
+    x = jax.vmap(lambda o, T, k, bx: score_input(mesh, cfg, o, jaxlie.SE3(T), k, bx))(obs, T_hyp, K, box)
+    logits = apply(cfg, params, x)  # (B, H)
+    sig = np.deg2rad(cfg.sigma_deg)
+    target = jax.nn.softmax(-0.5 * (err / sig) ** 2, -1)
+    ce = -jnp.sum(target * jax.nn.log_softmax(logits, -1), -1)
+    best = jnp.argmax(logits, -1)
+    e_best = jnp.abs(jnp.take_along_axis(err, best[:, None], -1)[:, 0])
+    parts = {"loss": jnp.mean(ce), "top1": jnp.mean(best == jnp.argmin(jnp.abs(err), -1)),
+             "flip": jnp.mean(e_best > np.pi / 2), "err_deg": jnp.rad2deg(jnp.mean(e_best))}
+    return parts["loss"], parts
+
+
+def check_scorer_batch(cfg: ScorerConfig, b, size: int, where: str) -> None:
+    from rhaml_jax.refine._task import check_fields
+
+    S, H = cfg.crop, len(train_offsets_deg(cfg))
+    check_fields(b, {"obs": (size, S, S, 3), "box": (size, 4), "K": (size, 3, 3), "T_hyp": (size, H, 7),
+                     "err": (size, H)}, "ScorerBatch", where)
+
+
+def scorer_task(cfg: ScorerConfig, tc, model, val_source=None, num_devices=None):
+    """(the `rhaml_jax.training.Task` of the scorer, its shardings); `model`: the RobotModel
+    rendered and fingerprinted."""
+    from rhaml_jax.refine._task import network_task
+
+    mesh = render.as_mesh(model)
+    return network_task("scorer", cfg, tc, model, init_params=init_params, config_to_dict=config_to_dict,
+                        config_from_dict=config_from_dict,
+                        loss=lambda params, *b: scorer_loss(cfg, mesh, params, b), n_fields=5,
+                        check_batch=lambda b, size, where: check_scorer_batch(cfg, b, size, where),
+                        val_source=val_source, num_devices=num_devices)
+
+
+# ------------------------------------------------------------------------------ test time
+
+
+class HeadingSearch(NamedTuple):
+    psi: jax.Array  # () the chosen heading (rad, wrapped)
+    flip_confidence: jax.Array  # () coarse softmax mass within 90 deg of psi, [0, 1]
+    flipped: jax.Array  # () bool: the answer faces the other way from psi0
+    coarse_logits: jax.Array  # (grid,) scores of psi0 + 2 pi k / grid
+
+
+def _peak(logits, step):
+    """(best index, offset of the parabola through the best score and its two cyclic neighbours,
+    within half a step: in units of `step` times step)."""
+    k = jnp.argmax(logits)
+    n = logits.shape[0]
+    lm, l0, lp = logits[(k - 1) % n], logits[k], logits[(k + 1) % n]
+    den = lm - 2 * l0 + lp
+    # guard: a flat top (den = 0) would divide by zero; the peak is then the best point itself
+    d = jnp.where(den < -1e-6, 0.5 * (lm - lp) / jnp.where(den < -1e-6, den, -1.0), 0.0)
+    return k, jnp.clip(d, -0.5, 0.5) * step
+
+
+def search_heading(score: Callable, psi0, grid: int, fine: int, fine_step: float,
+                   flip_threshold: float = 0.5) -> HeadingSearch:
+    """The heading that `score(headings (N,)) -> logits (N,)` rates best: a coarse grid of
+    `grid` headings from psi0; the side (facing as psi0 or the other way) whose softmax mass is
+    larger, the other way only if its mass exceeds `flip_threshold`; the best coarse heading on
+    that side, then `fine` headings `fine_step` apart around it, each peak refined by a parabola
+    (the fine grid's own ends are not interpolated past)."""
+    step = 2 * np.pi / grid
+    coarse = psi0 + step * jnp.arange(grid)
+    lc = score(coarse)
+    p = jax.nn.softmax(lc)
+    # weight of each coarse heading on psi0's side: 1 within 90 deg, 0 beyond, 1/2 at 90 deg (a
+    # flat score then puts half its mass on either side)
+    turn = np.minimum(np.arange(grid), grid - np.arange(grid)) * step
+    w_same = jnp.asarray(np.where(turn < np.pi / 2 - 1e-6, 1.0, np.where(turn > np.pi / 2 + 1e-6, 0.0, 0.5)), lc.dtype)
+    p_same = jnp.sum(p * w_same)
+    flipped = (1.0 - p_same) > flip_threshold
+    side = jnp.where(flipped, w_same < 1, w_same > 0)
+    # the other side's scores pushed below every score on this side (finite: the parabola reads them)
+    k, d = _peak(jnp.where(side, lc, jnp.min(lc) - 10.0), step)
+    psi_c = coarse[k] + d
+    if fine > 1:
+        offs = fine_step * (jnp.arange(fine) - (fine - 1) / 2)
+        lf = score(psi_c + offs)
+        kf = jnp.argmax(lf - 1e-6 * jnp.abs(offs))  # a tie goes to the centre
+        inner = (kf > 0) & (kf < fine - 1)
+        _, df = _peak(lf, fine_step)
+        psi_c = psi_c + offs[kf] + jnp.where(inner, df, 0.0)
+    psi = jnp.arctan2(jnp.sin(psi_c), jnp.cos(psi_c))
+    return HeadingSearch(psi, jnp.sum(jnp.where(jnp.cos(coarse - psi) > 0, p, 0.0)), flipped, lc)
+
+
+# ------------------------------------------------------------------------------ checkpoints
+
+
+def load_scorer(ckpt_dir: str | Path, model=None) -> Scorer:
+    """The scorer in an Orbax run folder; with `model` (a RobotModel) a checkpoint made for
+    another robot is refused (RhamlError)."""
+    from rhaml_jax.refine._checkpoint import load_params
+
+    return Scorer(*load_params(ckpt_dir, "scorer", model, config_from_dict, init_params))
+
+
+def export_scorer(run_dir: str | Path, out_dir: str | Path) -> Path:
+    """Writes the latest weights of a scorer run (no optimizer state) as a checkpoint folder."""
+    from rhaml_jax.refine._checkpoint import export_params
+
+    return export_params(run_dir, out_dir, load_scorer(run_dir).params)

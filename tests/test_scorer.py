@@ -1,0 +1,159 @@
+"""The refinement's heading scorer: the search finds the peak of a known score between grid
+points and reports its flip confidence; the CLI trains and resumes; the checkpoint refuses
+another robot or kind; examples are a pure function of (seed, index) with the hypotheses'
+heading errors as constructed; the network can learn to pick the true heading; refine() with it
+stays finite, declines a bad start and passes gradients straight through. Tiny config
+(scorer_micro) and data."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rhaml_jax import render
+from rhaml_jax.camera import DEFAULT_CAMERA
+from rhaml_jax.data import load_bop_model, load_rgb, read_bop, write_training_set
+from rhaml_jax.errors import RhamlError
+from rhaml_jax.refine import RefineConfig, load_refiner, load_scorer, refine
+from rhaml_jax.refine import scorer as S
+
+
+def _wrap(a):
+    return np.arctan2(np.sin(a), np.cos(a))
+
+
+def _gaussian_score(psi_true, sigma=np.deg2rad(12.0)):
+    """A score peaked at psi_true, smooth in the heading (what the training targets ask for)."""
+    return lambda h: -0.5 * (jnp.arctan2(jnp.sin(h - psi_true), jnp.cos(h - psi_true)) / sigma) ** 2
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-np.pi, np.pi), st.floats(-np.pi, np.pi))
+def test_search_finds_the_peak_between_grid_points(psi_true, psi0):
+    r = S.search_heading(_gaussian_score(psi_true), jnp.float32(psi0), 24, 5, np.deg2rad(5.0))
+    assert abs(_wrap(float(r.psi) - psi_true)) < np.deg2rad(0.3)
+    assert float(r.flip_confidence) > 0.99
+
+
+def test_search_keeps_the_start_on_a_flat_or_doubtful_score():
+    r = S.search_heading(lambda h: jnp.zeros_like(h), jnp.float32(0.3), 24, 5, np.deg2rad(5.0))
+    assert float(r.psi) == pytest.approx(0.3, abs=1e-6) and float(r.flip_confidence) == pytest.approx(0.5, abs=1e-6)
+    assert not bool(r.flipped)
+    # two equal peaks, front and back (at 1 and 1 + pi): the one on psi0's side, mass split evenly
+    two = lambda h: 5 * jnp.cos(2 * (h - 1.0))  # noqa: E731
+    r = S.search_heading(two, jnp.float32(0.8), 24, 5, np.deg2rad(5.0))
+    assert abs(float(r.psi) - 1.0) < np.deg2rad(0.5) and abs(float(r.flip_confidence) - 0.5) < 0.05
+    # a peak behind psi0 with 70 % of the mass: turned at threshold 0.5, kept at 0.8
+    behind = lambda h: jnp.log(0.7 * jnp.exp(-0.5 * (jnp.cos(h - np.pi) - 1) ** 2 * 40) + 0.3 / 24)  # noqa: E731
+    lo = S.search_heading(behind, jnp.float32(0.0), 24, 5, np.deg2rad(5.0), flip_threshold=0.5)
+    hi = S.search_heading(behind, jnp.float32(0.0), 24, 5, np.deg2rad(5.0), flip_threshold=0.99)
+    assert bool(lo.flipped) and abs(abs(float(lo.psi)) - np.pi) < np.deg2rad(0.5)
+    assert not bool(hi.flipped) and abs(float(hi.psi)) < np.pi / 2
+
+
+@pytest.fixture(scope="module")
+def bop_set(tmp_path_factory):
+    root = tmp_path_factory.mktemp("score") / "set"
+    write_training_set(root, "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=5, num=21, negatives=0, workers=1)
+    return root
+
+
+@pytest.fixture(scope="module")
+def run(bop_set, tmp_path_factory):
+    from rhaml_jax.train import main
+
+    out = tmp_path_factory.mktemp("scorerun")
+    args = ["--stage", "scorer", "--config", "scorer_micro", "--data", str(bop_set), "--out", str(out),
+            "--steps", "4", "--batch", "2", "--log-every", "2", "--val-every", "4", "--val-batches", "1",
+            "--ckpt-every", "2", "--no-progress"]
+    return out, main(args), args
+
+
+def test_cli_trains_resumes_and_logs(run):
+    out, res, args = run
+    rows = [json.loads(l) for l in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [2, 4] and all(np.isfinite(r["loss"]) for r in rows)
+    assert 0 <= rows[-1]["val_top1"] <= 1 and 0 <= rows[-1]["val_err_deg"] <= 180 and res["step"] == 4
+    from rhaml_jax.train import main
+
+    with pytest.raises(RhamlError, match="already holds a checkpoint"):
+        main(args)
+
+
+def test_checkpoint_refuses_another_robot_or_kind(run, bop_set, tmp_path):
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    sc = load_scorer(out, model)
+    assert sc.cfg == S.get_scorer_config("scorer_micro")
+    with pytest.raises(RhamlError, match="checkpoint is for robot"):
+        load_scorer(out, dataclasses.replace(model, vertices=model.vertices * 1.5))
+    with pytest.raises(RhamlError, match="not a refiner checkpoint"):
+        load_refiner(out)
+    again = load_scorer(S.export_scorer(out, tmp_path / "exported"), model)
+    for a, b in zip(jax.tree.leaves(sc.params), jax.tree.leaves(again.params)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_examples_are_pure_and_their_errors_as_constructed(bop_set):
+    cfg = S.get_scorer_config("scorer_micro")
+    a, b = S.ScorerSource(bop_set, "train", cfg, 4, seed=3), S.ScorerSource(bop_set, "train", cfg, 4, seed=3)
+    for x, y in zip(a(1), b(1)):
+        np.testing.assert_array_equal(x, y)
+    batch = a(0)
+    H = len(S.train_offsets_deg(cfg))
+    assert batch.T_hyp.shape == (4, H, 7) and batch.err.shape == (4, H) and batch.obs.shape == (4, 32, 32, 3)
+    offs = np.deg2rad(S.train_offsets_deg(cfg))
+    # every hypothesis is the first turned by its offset; all share one position
+    np.testing.assert_allclose(_wrap(batch.err - batch.err[:, :1] - offs), 0, atol=1e-4)
+    np.testing.assert_allclose(batch.T_hyp[..., 4:], batch.T_hyp[:, :1, 4:].repeat(H, 1), atol=1e-5)
+
+
+def test_the_network_learns_to_pick_the_true_heading(bop_set):
+    """Overfit two crops: the scorer must come to rate the hypothesis nearest the truth best
+    (a scorer that cannot tell renders apart stays at top-1 = chance and loss log H)."""
+    cfg = S.get_scorer_config("scorer_micro")
+    src = S.ScorerSource(bop_set, "train", cfg, 2, seed=0)
+    b = tuple(jnp.asarray(x) for x in src(0))
+    mesh = render.as_mesh(load_bop_model(bop_set))
+    params = S.init_params(cfg, jax.random.key(0))
+    tx = optax.adam(3e-3)
+    opt = tx.init(params)
+    grad = jax.jit(jax.value_and_grad(lambda p: S.scorer_loss(cfg, mesh, p, b), has_aux=True))
+    (l0, _), _ = grad(params)
+    for _ in range(150):
+        (loss, parts), g = grad(params)
+        upd, opt = tx.update(g, opt)
+        params = optax.apply_updates(params, upd)
+    assert float(loss) < 0.5 * float(l0) and float(parts["top1"]) == 1.0 and float(parts["flip"]) == 0.0
+
+
+def test_refine_with_a_scorer_is_finite_declines_and_passes_gradients(run, bop_set):
+    from rhaml_jax.refine import Refiner, RefinerConfig
+    from rhaml_jax.refine import net as N
+
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    sc = load_scorer(out, model)
+    rc = RefinerConfig(name="t", crop=32, widths=(8, 16), hidden=16, n_points=32, n_iter=1)
+    ref = Refiner(N.init_params(rc, jax.random.key(1)), rc)
+    mesh = render.as_mesh(model)
+    f = read_bop(bop_set, "train")[0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    cfg = RefineConfig(camera_height_m=float(f.camera_height_m))
+    go = jax.jit(lambda init: refine(ref, mesh, img, f.K, init, cfg, scorer=sc))
+    r = go(jnp.asarray(f.xypsi, jnp.float32))
+    assert not bool(r.declined) and np.isfinite(np.asarray(r.xypsi)).all()
+    assert r.iterates.shape == (1 + 1 + 1 + cfg.post_iter, 3) and 0 <= float(r.flip_prob) <= 1
+    bad = go(jnp.asarray([-2.0, 0.0, 0.0], jnp.float32))  # behind the camera
+    assert bool(bad.declined) and float(bad.flip_prob) == -1.0
+    np.testing.assert_allclose(bad.xypsi, [-2.0, 0.0, 0.0])
+    g = jax.grad(lambda init: jnp.sum(go(init).xypsi))(jnp.asarray(f.xypsi, jnp.float32))
+    assert np.isfinite(np.asarray(g)).all() and float(jnp.abs(g[2])) > 0
