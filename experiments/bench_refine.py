@@ -63,6 +63,10 @@ class Args:
     """with --refiner: also run the alignment to the refiner's predicted mask (measured worse: BENCHMARKS.md)"""
     scorer: Path | None = None
     """with --refiner: a heading scorer checkpoint (`train --stage scorer`): the heading search after the learned iterations"""
+    flip_threshold: float = RefineConfig.flip_threshold
+    """with --scorer: `RefineConfig.flip_threshold` (the scorer's mass on the other side needed to turn the heading)"""
+    post_iter: int = RefineConfig.post_iter
+    """with --scorer: `RefineConfig.post_iter` (learned iterations after the heading search)"""
     segmenter: Path | None = None
     """a segmenter checkpoint (`train --stage segmenter`): also run the alignment to its masks of the images"""
     oracle: bool = True
@@ -84,7 +88,8 @@ def summary(est, gt, ms=None) -> dict:
 def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None) -> list[dict]:
     """Rows after each learned iteration (with a scorer: then after the heading search and the
     post iterations) and, with --align-predicted, after the alignment to the predicted mask."""
-    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=None), scorer=sc))
+    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter)
+    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
     its, est, ms_it, ms_all, flip_prob = [], [], [], [], []
     for j, fr in enumerate(frames):

@@ -2,7 +2,7 @@
 both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
 
   python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
-      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT]
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT]
 
 Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
 """
@@ -24,6 +24,7 @@ def main():
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario (default: all)")
     ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint folder (default: the shipped one)")
     ap.add_argument("--zoom", default=None, help="zoom-stage checkpoint folder (default: the shipped one)")
+    ap.add_argument("--refiner", default=None, help="refiner checkpoint folder for ir (default: the shipped one)")
     a = ap.parse_args()
     from rhaml_jax import iml, pgo, tune_allocator
 
@@ -43,7 +44,7 @@ def main():
             for info in infos:
                 fusion = pgo.FusionConfig(information=info) if info else None
                 t = time.perf_counter()
-                m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion)
+                m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion, a.refiner)
                 row = {"set": set_name, "modules": combo, "information": info, **m,
                        "wall_seconds": round(time.perf_counter() - t, 1)}
                 print(json.dumps(row), flush=True)

@@ -109,3 +109,28 @@ def test_disentangled_update_reaches_a_known_target():
         (tgt.rotation() @ src.rotation().inverse()).log()])
     out = N.apply_update(src, upd, K, box)
     np.testing.assert_allclose(np.asarray(out.as_matrix()), np.asarray(tgt.as_matrix()), atol=1e-5)
+
+
+def test_a_luma_refiner_reads_luminance_only(bop_set):
+    """refiner_cpu_luma's input is the crops' luminance and the mask: two observed crops of equal
+    luminance but other hues give the same update; a colour refiner tells them apart."""
+    from rhaml_jax.refine.train import render_input
+
+    mesh = render.as_mesh(load_bop_model(bop_set))
+    K = jnp.asarray(DEFAULT_CAMERA.K, jnp.float32)
+    T = jaxlie.SE3((camera.T_cam_robot(0.3) @ frames.se3_from_xypsi(jnp.array([3.0, 0.2, 0.5]))).wxyz_xyz[None])
+    box = jnp.array([[260.0, 200.0, 380.0, 320.0]])
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.2, 0.8, (1, 16, 16, 3)).astype(np.float32)
+    # move colour along a direction of zero luminance: (0.587, -0.299, 0) * t keeps 0.299 r + 0.587 g
+    b = a + np.array([0.587, -0.299, 0.0], np.float32) * 0.2
+    outs = {}
+    for luma in (True, False):
+        cfg = dataclasses.replace(N.get_refiner_config("refiner_micro"), crop=16, luma=luma)
+        params = N.init_params(cfg, jax.random.key(0))
+        params["head"]["w"] = jax.random.normal(jax.random.key(1), params["head"]["w"].shape)  # a non-zero head
+        xa, xb = (render_input(mesh, cfg, jnp.asarray(o), T, K, box) for o in (a, b))
+        assert xa.shape[-1] == N.in_channels(cfg) == (3 if luma else 7)
+        outs[luma] = [np.asarray(N.apply(cfg, params, x).update) for x in (xa, xb)]
+    np.testing.assert_allclose(outs[True][0], outs[True][1], atol=1e-5)
+    assert np.abs(outs[False][0] - outs[False][1]).max() > 1e-4

@@ -3,7 +3,8 @@ observed crop stacked with the render at the current pose, regressing a relative
 in DeepIM's disentangled form and the observed robot's mask.
 
 Input (S, S, 7): observed crop RGB, rendered RGB, rendered mask, all in [0, 1], one crop box
-(`rhaml_jax.crop`) for both. Output: (v_x, v_y) image-plane offsets of the model origin's
+(`rhaml_jax.crop`) for both; with `luma` (S, S, 3): the two crops' BT.601 luminance and the mask
+(no hue to lean on: a repainted robot reads alike). Output: (v_x, v_y) image-plane offsets of the model origin's
 projection in units of the crop's size, v_z = log(z_src / z_tgt), a rotation vector (axis-angle,
 camera-frame axes, about the model origin; DeepIM's disentangled rotation) and mask logits
 (S, S). `apply_update` composes them with the source pose T_cam_model.
@@ -45,9 +46,21 @@ class RefinerConfig:
     """model surface points of the point-matching loss (eq. 8)"""
     scale: tuple[float, float, float, float] = (0.1, 0.1, 0.1, 0.2)
     """output scales of (v_x, v_y), v_z, rotation (rad), mask logits init: keeps the first updates small"""
+    luma: bool = False
+    """input luminance (observed, render) and the render's mask instead of RGB + RGB + mask"""
 
 
-REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_micro": RefinerConfig(name="refiner_micro", crop=32,
+def luminance(rgb):
+    """(..., 3) RGB -> (...,) BT.601 luminance."""
+    return rgb @ jnp.asarray([0.299, 0.587, 0.114], rgb.dtype)
+
+
+def in_channels(cfg) -> int:
+    return 3 if cfg.luma else 7
+
+
+REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerConfig(name="refiner_cpu_luma", luma=True),
+                   "refiner_micro": RefinerConfig(name="refiner_micro", crop=32,
                                                                                    widths=(8, 16), hidden=32,
                                                                                    n_points=64)}
 
@@ -83,7 +96,7 @@ def _conv_init(key, k, cin, cout):
 
 def init_params(cfg: RefinerConfig, key) -> dict:
     keys = jax.random.split(key, len(cfg.widths) + 4)
-    convs, cin = [], 7
+    convs, cin = [], in_channels(cfg)
     for i, c in enumerate(cfg.widths):
         convs.append(_conv_init(keys[i], 3, cin, c))
         cin = c
@@ -107,7 +120,7 @@ class Output(NamedTuple):
 
 
 def apply(cfg: RefinerConfig, params: dict, x) -> Output:
-    """x (B, S, S, 7) -> Output."""
+    """x (B, S, S, 7) (luma: (B, S, S, 3)) -> Output."""
     h = x * 2.0 - 1.0
     feats = []
     for p in params["convs"]:

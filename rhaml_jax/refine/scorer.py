@@ -39,15 +39,12 @@ import numpy as np
 
 from rhaml_jax import render
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine.net import _conv, _conv_init, json_safe
+from rhaml_jax.refine.net import _conv, _conv_init, json_safe, luminance
 from rhaml_jax.refine.train import CropSource, _se3_params
 
 __all__ = ["ScorerConfig", "SCORER_CONFIGS", "get_scorer_config", "Scorer", "init_params", "apply", "score_input",
            "scorer_loss", "ScorerBatch", "ScorerSource", "scorer_task", "HeadingSearch", "search_heading",
            "train_offsets_deg", "load_scorer", "export_scorer"]
-
-_LUMA = (0.299, 0.587, 0.114)
-
 
 @dataclasses.dataclass(frozen=True)
 class ScorerConfig:
@@ -131,10 +128,9 @@ def score_input(mesh, cfg: ScorerConfig, obs, T_cam: jaxlie.SE3, K, box):
     [0, 1], K (3, 3), box (4,). The render is an input (no gradient), as the refiner's."""
     S = cfg.crop
     H = T_cam.wxyz_xyz.shape[0]
-    w = jnp.asarray(_LUMA, obs.dtype)
-    out = render.render(mesh, T_cam, jnp.broadcast_to(K, (H, 3, 3)), S, S, box=jnp.broadcast_to(box, (H, 4)))
-    rend = jax.lax.stop_gradient(jnp.stack([out.rgb @ w, out.mask.astype(obs.dtype)], -1))
-    o = jnp.broadcast_to((obs @ w)[None, ..., None], (H, S, S, 1))
+    out = render.render(mesh, T_cam, K, S, S, box=box)  # one K and box for all H hypotheses
+    rend = jax.lax.stop_gradient(jnp.stack([luminance(out.rgb), out.mask.astype(obs.dtype)], -1))
+    o = jnp.broadcast_to(luminance(obs)[None, ..., None], (H, S, S, 1))
     return jnp.concatenate([o, rend], -1)
 
 

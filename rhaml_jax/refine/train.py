@@ -137,11 +137,15 @@ def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str) -> None:
 
 
 def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box):
-    """(B, S, S, 7) network input: observed crop, render (RGB, mask) at T_cam (no gradient:
-    the render is an input, as in DeepIM)."""
+    """(B, S, S, 7) network input (luma: (B, S, S, 3)): observed crop, render (RGB, mask) at
+    T_cam (no gradient: the render is an input, as in DeepIM)."""
     S = cfg.crop
     out = render.render(mesh, T_cam, K, S, S, box=box)
-    rend = jax.lax.stop_gradient(jnp.concatenate([out.rgb, out.mask[..., None].astype(obs.dtype)], -1))
+    mask = out.mask[..., None].astype(obs.dtype)
+    if cfg.luma:
+        rend = jnp.concatenate([N.luminance(out.rgb)[..., None], mask], -1)
+        return jnp.concatenate([N.luminance(obs)[..., None], jax.lax.stop_gradient(rend)], -1)
+    rend = jax.lax.stop_gradient(jnp.concatenate([out.rgb, mask], -1))
     return jnp.concatenate([obs, rend], -1)
 
 
