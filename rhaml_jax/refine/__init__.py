@@ -140,7 +140,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
                 T1 = jaxlie.SE3(T.wxyz_xyz[None])
                 bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
                 obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
-                out = N.apply(rc, refiner.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7) input
+                out = N.apply(rc, refiner.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
                 T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
                 iterates.append(frames.xypsi_from_se3(T_back @ T))
             return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2]
