@@ -15,30 +15,22 @@ import pytest
 
 from rhaml_jax import camera, frames, render
 from rhaml_jax.camera import DEFAULT_CAMERA
-from rhaml_jax.data import load_bop_model, load_rgb, read_bop, write_training_set
+from rhaml_jax.data import load_bop_model, load_rgb, read_bop
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine import RefineConfig, load_refiner, refine
 from rhaml_jax.refine import net as N
 from rhaml_jax.refine.train import RefinerSource
+from tests.conftest import train_tiny
 
 
 @pytest.fixture(scope="module")
-def bop_set(tmp_path_factory):
-    root = tmp_path_factory.mktemp("refine") / "set"
-    write_training_set(root, "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=5, num=21, negatives=0, workers=1)
-    return root
+def bop_set(tiny_bop_set):
+    return tiny_bop_set
 
 
 @pytest.fixture(scope="module")
 def run(bop_set, tmp_path_factory):
-    from rhaml_jax.train import main
-
-    out = tmp_path_factory.mktemp("run")
-    args = ["--stage", "refiner", "--config", "refiner_micro", "--data", str(bop_set), "--out", str(out),
-            "--steps", "4", "--batch", "2", "--log-every", "2", "--val-every", "4", "--val-batches", "1",
-            "--ckpt-every", "2", "--no-progress"]
-    res = main(args)
-    return out, res, args
+    return train_tiny("refiner", "refiner_micro", bop_set, tmp_path_factory.mktemp("run"))
 
 
 def test_cli_trains_resumes_and_logs(run):

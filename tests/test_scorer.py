@@ -19,11 +19,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rhaml_jax import render
-from rhaml_jax.camera import DEFAULT_CAMERA
-from rhaml_jax.data import load_bop_model, load_rgb, read_bop, write_training_set
+from rhaml_jax.data import load_bop_model, load_rgb, read_bop
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine import RefineConfig, load_refiner, load_scorer, refine
 from rhaml_jax.refine import scorer as S
+from tests.conftest import train_tiny
 
 
 def _wrap(a):
@@ -60,21 +60,13 @@ def test_search_keeps_the_start_on_a_flat_or_doubtful_score():
 
 
 @pytest.fixture(scope="module")
-def bop_set(tmp_path_factory):
-    root = tmp_path_factory.mktemp("score") / "set"
-    write_training_set(root, "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=5, num=21, negatives=0, workers=1)
-    return root
+def bop_set(tiny_bop_set):
+    return tiny_bop_set
 
 
 @pytest.fixture(scope="module")
 def run(bop_set, tmp_path_factory):
-    from rhaml_jax.train import main
-
-    out = tmp_path_factory.mktemp("scorerun")
-    args = ["--stage", "scorer", "--config", "scorer_micro", "--data", str(bop_set), "--out", str(out),
-            "--steps", "4", "--batch", "2", "--log-every", "2", "--val-every", "4", "--val-batches", "1",
-            "--ckpt-every", "2", "--no-progress"]
-    return out, main(args), args
+    return train_tiny("scorer", "scorer_micro", bop_set, tmp_path_factory.mktemp("scorerun"))
 
 
 def test_cli_trains_resumes_and_logs(run):

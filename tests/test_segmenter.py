@@ -20,6 +20,7 @@ from rhaml_jax.data import load_bop_model, load_rgb, read_bop, write_training_se
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine import RefineConfig, load_refiner, load_segmenter, observed_mask, refine
 from rhaml_jax.refine import segmenter as G
+from tests.conftest import train_tiny
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +32,7 @@ def bop_set(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def run(bop_set, tmp_path_factory):
-    from rhaml_jax.train import main
-
-    out = tmp_path_factory.mktemp("segrun")
-    args = ["--stage", "segmenter", "--config", "segmenter_micro", "--data", str(bop_set), "--out", str(out),
-            "--steps", "4", "--batch", "2", "--log-every", "2", "--val-every", "4", "--val-batches", "1",
-            "--ckpt-every", "2", "--no-progress"]
-    return out, main(args), args
+    return train_tiny("segmenter", "segmenter_micro", bop_set, tmp_path_factory.mktemp("segrun"))
 
 
 def test_cli_trains_resumes_and_logs(run):

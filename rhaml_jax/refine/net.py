@@ -83,10 +83,15 @@ def json_safe(d):
     return json.loads(json.dumps(d))
 
 
+def dataclass_from_dict(cls, d: dict):
+    """A config dataclass from its stored JSON dict (lists back to tuples; keys it does not have,
+    from another version, dropped)."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+
+
 def config_from_dict(d: dict) -> RefinerConfig:
-    fields = {f.name for f in dataclasses.fields(RefinerConfig)}
-    d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields}
-    return RefinerConfig(**d)
+    return dataclass_from_dict(RefinerConfig, d)
 
 
 def _conv_init(key, k, cin, cout):

@@ -39,7 +39,7 @@ import numpy as np
 
 from rhaml_jax import render
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine.net import _conv, _conv_init, json_safe, luminance
+from rhaml_jax.refine.net import _conv, _conv_init, dataclass_from_dict, json_safe, luminance
 from rhaml_jax.refine.train import CropSource, _se3_params
 
 __all__ = ["ScorerConfig", "SCORER_CONFIGS", "get_scorer_config", "Scorer", "init_params", "apply", "score_input",
@@ -84,8 +84,7 @@ def config_to_dict(cfg: ScorerConfig) -> dict:
 
 
 def config_from_dict(d: dict) -> ScorerConfig:
-    fields = {f.name for f in dataclasses.fields(ScorerConfig)}
-    return ScorerConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+    return dataclass_from_dict(ScorerConfig, d)
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])

@@ -35,7 +35,7 @@ import numpy as np
 
 from rhaml_jax import crop as _crop
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine.net import _conv, _conv_init, json_safe, mask_loss
+from rhaml_jax.refine.net import _conv, _conv_init, dataclass_from_dict, json_safe, mask_loss
 from rhaml_jax.refine.train import CropSource
 
 __all__ = ["SegmenterConfig", "SEGMENTER_CONFIGS", "get_segmenter_config", "Segmenter", "init_params", "apply",
@@ -75,8 +75,7 @@ def config_to_dict(cfg: SegmenterConfig) -> dict:
 
 
 def config_from_dict(d: dict) -> SegmenterConfig:
-    fields = {f.name for f in dataclasses.fields(SegmenterConfig)}
-    return SegmenterConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+    return dataclass_from_dict(SegmenterConfig, d)
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
