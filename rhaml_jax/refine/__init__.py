@@ -77,6 +77,7 @@ class RefineResult(NamedTuple):
     #                        (0 without a refiner): large values flag an erroneous observation
     declined: jax.Array  # () bool: the initial pose is behind the camera / projects outside the image
     flip_confidence: jax.Array  # () the alignment's margin over the best other-facing hypothesis, [0, 1]
+    #                             (with a scorer and no alignment: 2 P(same side) - 1, clipped at 0)
     score: jax.Array  # () the alignment's final loss (0 without alignment)
     iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one);
     #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations
@@ -147,7 +148,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
 
         xyp, roll_pitch = learned(safe, n_iter)
         if scorer is not None:
-            xyp, flip_prob, conf = _heading_search(scorer, mesh, image, K, xyp, h, cfg.flip_threshold)
+            xyp, flip_prob, conf = _heading_search(scorer, mesh, corners, image, K, xyp, h, cfg.flip_threshold)
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
@@ -181,14 +182,14 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
                         jnp.where(declined, -1.0, flip_prob))
 
 
-def _heading_search(scorer: Scorer, mesh, image, K, xyp, h, flip_threshold: float):
+def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_threshold: float):
     """The scorer's heading at the position of xyp (3,): (planar pose, flip probability, flip
     confidence). Straight-through in the heading (d result / d xyp = identity): the search is an
     argmax."""
     from rhaml_jax.refine import scorer as S
 
     sc = scorer.cfg
-    box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ _corners(mesh), margin=sc.margin))
+    box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=sc.margin))
     obs = _crop.crop_image(image, box, sc.crop, sc.crop)
     pos = jax.lax.stop_gradient(xyp[:2])
 

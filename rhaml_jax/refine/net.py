@@ -51,8 +51,10 @@ class RefinerConfig:
 
 
 def luminance(rgb):
-    """(..., 3) RGB -> (...,) BT.601 luminance."""
-    return rgb @ jnp.asarray([0.299, 0.587, 0.114], rgb.dtype)
+    """(..., 3) RGB -> (...,) BT.601 luminance (`amlnet.model.LUMA`, as AMLNet's luma input)."""
+    from rhaml_jax.amlnet.model import LUMA
+
+    return rgb @ jnp.asarray(LUMA, rgb.dtype)
 
 
 def in_channels(cfg) -> int:
@@ -65,15 +67,21 @@ REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerCo
                                                                                    n_points=64)}
 
 
-def get_refiner_config(name: str) -> RefinerConfig:
+def named_config(configs: dict, name: str, what: str):
+    """configs[name], or RhamlError naming the known ones (`what`: "refiner", "segmenter", ...)."""
     from rhaml_jax.errors import RhamlError
 
-    if name not in REFINER_CONFIGS:
-        raise RhamlError(f"--config {name!r}: not a refiner config (known: {', '.join(REFINER_CONFIGS)})")
-    return REFINER_CONFIGS[name]
+    if name not in configs:
+        raise RhamlError(f"--config {name!r}: not a {what} config (known: {', '.join(configs)})")
+    return configs[name]
 
 
-def config_to_dict(cfg: RefinerConfig) -> dict:
+def get_refiner_config(name: str) -> RefinerConfig:
+    return named_config(REFINER_CONFIGS, name, "refiner")
+
+
+def config_to_dict(cfg) -> dict:
+    """A config dataclass (any of the refinement networks') as a JSON-safe dict."""
     return json_safe(dataclasses.asdict(cfg))
 
 
@@ -99,15 +107,32 @@ def _conv_init(key, k, cin, cout):
             "b": jnp.zeros((cout,), jnp.float32)}
 
 
+def encoder_init(conv_keys, fc_key, cin: int, widths, crop: int, hidden: int):
+    """(convs, fc) of `encode`: stride-2 3x3 convolutions of `widths` channels on a crop x crop
+    input of `cin` channels, then a fully connected layer of `hidden` units."""
+    convs = []
+    for k, c in zip(conv_keys, widths):
+        convs.append(_conv_init(k, 3, cin, c))
+        cin = c
+    side = crop // 2 ** len(widths)
+    flat = side * side * cin
+    fc = {"w": jax.random.normal(fc_key, (flat, hidden)) * np.sqrt(2.0 / flat), "b": jnp.zeros((hidden,))}
+    return convs, fc
+
+
+def encode(convs, fc, x):
+    """x (B, S, S, C) in [0, 1] -> (features (B, hidden), each convolution's output)."""
+    h = x * 2.0 - 1.0
+    feats = []
+    for p in convs:
+        h = jax.nn.gelu(_conv(h, p, 2))
+        feats.append(h)
+    return jax.nn.gelu(h.reshape(x.shape[0], -1) @ fc["w"] + fc["b"]), feats
+
+
 def init_params(cfg: RefinerConfig, key) -> dict:
     keys = jax.random.split(key, len(cfg.widths) + 4)
-    convs, cin = [], in_channels(cfg)
-    for i, c in enumerate(cfg.widths):
-        convs.append(_conv_init(keys[i], 3, cin, c))
-        cin = c
-    side = cfg.crop // 2 ** len(cfg.widths)
-    flat = side * side * cin
-    fc = {"w": jax.random.normal(keys[-4], (flat, cfg.hidden)) * np.sqrt(2.0 / flat), "b": jnp.zeros((cfg.hidden,))}
+    convs, fc = encoder_init(keys[:len(cfg.widths)], keys[-4], in_channels(cfg), cfg.widths, cfg.crop, cfg.hidden)
     head = {"w": jnp.zeros((cfg.hidden, 6)), "b": jnp.zeros((6,))}  # zero init: the first update is the identity
     mask_in = cfg.widths[1] if len(cfg.widths) > 1 else cfg.widths[0]
     mask = _conv_init(keys[-2], 3, mask_in, 1)
@@ -126,13 +151,8 @@ class Output(NamedTuple):
 
 def apply(cfg: RefinerConfig, params: dict, x) -> Output:
     """x (B, S, S, 7) (luma: (B, S, S, 3)) -> Output."""
-    h = x * 2.0 - 1.0
-    feats = []
-    for p in params["convs"]:
-        h = jax.nn.gelu(_conv(h, p, 2))
-        feats.append(h)
     B = x.shape[0]
-    z = jax.nn.gelu(h.reshape(B, -1) @ params["fc"]["w"] + params["fc"]["b"])
+    z, feats = encode(params["convs"], params["fc"], x)
     raw = z @ params["head"]["w"] + params["head"]["b"]
     s = jnp.asarray([cfg.scale[0], cfg.scale[0], cfg.scale[1], cfg.scale[2], cfg.scale[2], cfg.scale[2]])
     f = feats[1] if len(feats) > 1 else feats[0]

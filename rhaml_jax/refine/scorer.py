@@ -38,8 +38,7 @@ import jaxlie
 import numpy as np
 
 from rhaml_jax import render
-from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine.net import _conv, _conv_init, dataclass_from_dict, json_safe, luminance
+from rhaml_jax.refine.net import config_to_dict, dataclass_from_dict, encode, encoder_init, luminance, named_config
 from rhaml_jax.refine.train import CropSource, _se3_params
 
 __all__ = ["ScorerConfig", "SCORER_CONFIGS", "get_scorer_config", "Scorer", "init_params", "apply", "score_input",
@@ -74,13 +73,7 @@ SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
 
 
 def get_scorer_config(name: str) -> ScorerConfig:
-    if name not in SCORER_CONFIGS:
-        raise RhamlError(f"--config {name!r}: not a scorer config (known: {', '.join(SCORER_CONFIGS)})")
-    return SCORER_CONFIGS[name]
-
-
-def config_to_dict(cfg: ScorerConfig) -> dict:
-    return json_safe(dataclasses.asdict(cfg))
+    return named_config(SCORER_CONFIGS, name, "scorer")
 
 
 def config_from_dict(d: dict) -> ScorerConfig:
@@ -101,13 +94,7 @@ class Scorer:
 
 def init_params(cfg: ScorerConfig, key) -> dict:
     keys = jax.random.split(key, len(cfg.widths) + 2)
-    convs, cin = [], 3
-    for i, c in enumerate(cfg.widths):
-        convs.append(_conv_init(keys[i], 3, cin, c))
-        cin = c
-    side = cfg.crop // 2 ** len(cfg.widths)
-    flat = side * side * cin
-    fc = {"w": jax.random.normal(keys[-2], (flat, cfg.hidden)) * np.sqrt(2.0 / flat), "b": jnp.zeros((cfg.hidden,))}
+    convs, fc = encoder_init(keys[:len(cfg.widths)], keys[-2], 3, cfg.widths, cfg.crop, cfg.hidden)
     out = {"w": jnp.zeros((cfg.hidden, 1)), "b": jnp.zeros((1,))}  # zero init: every hypothesis alike at first
     return {"convs": convs, "fc": fc, "out": out}
 
@@ -115,10 +102,7 @@ def init_params(cfg: ScorerConfig, key) -> dict:
 def apply(cfg: ScorerConfig, params: dict, x):
     """x (..., S, S, 3) in [0, 1] -> score logits (...,)."""
     lead = x.shape[:-3]
-    h = x.reshape((-1,) + x.shape[-3:]) * 2.0 - 1.0
-    for p in params["convs"]:
-        h = jax.nn.gelu(_conv(h, p, 2))
-    z = jax.nn.gelu(h.reshape(h.shape[0], -1) @ params["fc"]["w"] + params["fc"]["b"])
+    z, _ = encode(params["convs"], params["fc"], x.reshape((-1,) + x.shape[-3:]))
     return (z @ params["out"]["w"] + params["out"]["b"])[:, 0].reshape(lead)
 
 
@@ -160,11 +144,11 @@ class ScorerSource(CropSource):
 
     def initial(self, xypsi, rng):
         x, y, psi = xypsi
-        r, b = np.hypot(x, y), np.arctan2(y, x)
+        r0, b = np.hypot(x, y), np.arctan2(y, x)
         s = self.cfg.pos_sigma_m
         along, across = rng.normal(0, s), rng.normal(0, s)
-        r = max(r + along, 0.3)
-        b = b + across / max(np.hypot(x, y), 0.3)
+        r = max(r0 + along, 0.3)
+        b = b + across / max(r0, 0.3)
         half = np.pi / self.cfg.grid
         dpsi = rng.uniform(-half, half) if rng.random() < 0.75 else rng.uniform(-np.pi, np.pi)
         return np.array([r * np.cos(b), r * np.sin(b), psi + dpsi])

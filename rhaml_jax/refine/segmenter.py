@@ -34,8 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax import crop as _crop
-from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine.net import _conv, _conv_init, dataclass_from_dict, json_safe, mask_loss
+from rhaml_jax.refine.net import _conv, _conv_init, config_to_dict, dataclass_from_dict, luminance, mask_loss, named_config
 from rhaml_jax.refine.train import CropSource
 
 __all__ = ["SegmenterConfig", "SEGMENTER_CONFIGS", "get_segmenter_config", "Segmenter", "init_params", "apply",
@@ -65,13 +64,7 @@ SEGMENTER_CONFIGS = {"segmenter_cpu": SegmenterConfig(),
 
 
 def get_segmenter_config(name: str) -> SegmenterConfig:
-    if name not in SEGMENTER_CONFIGS:
-        raise RhamlError(f"--config {name!r}: not a segmenter config (known: {', '.join(SEGMENTER_CONFIGS)})")
-    return SEGMENTER_CONFIGS[name]
-
-
-def config_to_dict(cfg: SegmenterConfig) -> dict:
-    return json_safe(dataclasses.asdict(cfg))
+    return named_config(SEGMENTER_CONFIGS, name, "segmenter")
 
 
 def config_from_dict(d: dict) -> SegmenterConfig:
@@ -114,7 +107,7 @@ def init_params(cfg: SegmenterConfig, key) -> dict:
 def _prepare(cfg: SegmenterConfig, crop):
     """(B, S, S, 3) RGB in [0, 1] -> the network's input in [-1, 1]."""
     if cfg.luma:
-        crop = crop @ jnp.asarray([0.299, 0.587, 0.114], crop.dtype)[:, None]
+        crop = luminance(crop)[..., None]
     return crop * 2.0 - 1.0
 
 
