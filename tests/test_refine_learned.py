@@ -126,3 +126,23 @@ def test_a_luma_refiner_reads_luminance_only(bop_set):
         outs[luma] = [np.asarray(N.apply(cfg, params, x).update) for x in (xa, xb)]
     np.testing.assert_allclose(outs[True][0], outs[True][1], atol=1e-5)
     assert np.abs(outs[False][0] - outs[False][1]).max() > 1e-4
+
+
+def test_the_papers_position_noise_scales_with_the_robot(bop_set):
+    """0.15 m for the Pioneer (its BOP ply read back has world scale 1), 0.15 m x 0.39 for a
+    TurtleBot3-sized world; the heading noise and the IML-like draws do not depend on the scale."""
+    from rhaml_jax.refine.train import initial_pose
+
+    assert load_bop_model(bop_set).world_scale == 1.0
+    assert RefinerSource(bop_set, "train", N.get_refiner_config("refiner_micro"), 2).scale == 1.0
+    truth = np.array([3.0, 0.5, 0.3])
+
+    def spread(scale):
+        draws = [initial_pose(truth, np.random.default_rng(i), scale) for i in range(4000)]
+        rng_first = [np.random.default_rng(i).random() < 0.5 for i in range(4000)]  # the paper's branch
+        d = np.array([x - truth for x, paper in zip(draws, rng_first) if paper])
+        return d[:, :2].std(), d[:, 2].std()
+
+    (xy1, psi1), (xy39, psi39) = spread(1.0), spread(0.39)
+    assert abs(xy1 - 0.15) < 0.01 and abs(xy39 - 0.15 * 0.39) < 0.004
+    assert abs(psi1 - np.deg2rad(20)) < 0.03 and abs(psi39 - psi1) < 1e-12

@@ -49,7 +49,6 @@ MEASURED_FACES = (604, 91_104)
 IMAGE_S = (1 / 25, 1 / 10)
 EVAL_FRAME_S = (1 / 2, 1.17)
 REFINER_STEP_S = (0.12, 0.5)
-PIONEER_LENGTH_M = 0.455  # the built-in Pioneer's length (robots.fingerprint: 45.5 x 38.1 x 23.7 cm)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
@@ -105,8 +104,8 @@ class Plan:
 
 
 def world_scale(model) -> float:
-    """The robot's planar length over the built-in Pioneer's, to two decimals (module docstring)."""
-    return round(float(max(model.extents[0], model.extents[1])) / PIONEER_LENGTH_M, 2)
+    """The robot's planar length over the built-in Pioneer's, to two decimals (`RobotModel.world_scale`)."""
+    return model.world_scale
 
 
 def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces: int = MEASURED_FACES[0], scale: float = 1.0,

@@ -3,7 +3,8 @@ mask head's cross-entropy) and the `rhaml_jax.training.Task` that `python -m rha
 --stage refiner` runs.
 
 An example is a pure function of (seed, index): frame index mod N of the set, its initial pose
-drawn either as the paper's (ground truth + N(0, 0.15 m) on x, y and N(0, 20 deg) on psi) or as
+drawn either as the paper's (ground truth + N(0, 0.15 m) on x, y and N(0, 20 deg) on psi; the
+0.15 m times the robot's `RobotModel.world_scale`, 1 for the Pioneer) or as
 our IML errs (range off by up to 15 %, bearing N(0, 1.5 deg), heading N(0, 10 deg), turned by
 180 deg one time in eight), half each. The crop box comes from the initial pose (DeepIM's
 zoom-in, `rhaml_jax.crop.object_box`); the observed crop is `crop.crop_image_host`, the render
@@ -43,11 +44,13 @@ def _corners(vertices: np.ndarray) -> np.ndarray:
     return lo + sel * (hi - lo)
 
 
-def initial_pose(xypsi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(3,) an initial planar estimate around the true `xypsi` (see the module docstring)."""
+def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """(3,) an initial planar estimate around the true `xypsi` (see the module docstring); `scale`:
+    the robot's world scale, which the paper's 0.15 m position noise is multiplied by."""
     x, y, psi = xypsi
-    if rng.random() < 0.5:  # the paper's noise
-        return np.array([x + rng.normal(0, 0.15), y + rng.normal(0, 0.15), psi + rng.normal(0, np.deg2rad(20))])
+    if rng.random() < 0.5:  # the paper's noise, in the robot's world
+        sigma = 0.15 * scale
+        return np.array([x + rng.normal(0, sigma), y + rng.normal(0, sigma), psi + rng.normal(0, np.deg2rad(20))])
     r, b = np.hypot(x, y), np.arctan2(y, x)
     r *= 1 + rng.uniform(-0.15, 0.15)
     b += rng.normal(0, np.deg2rad(1.5))
@@ -75,6 +78,7 @@ class CropSource:
             raise RhamlError(f"{root}: split {split!r} has no image with the robot in view")
         self.model = load_bop_model(root)
         self.corners = _corners(self.model.vertices)
+        self.scale = self.model.world_scale
         self.cfg, self.batch, self.seed = cfg, batch, seed
         self._cache = ImageCache(self.cache_bytes)
 
@@ -87,7 +91,7 @@ class CropSource:
 
     def initial(self, xypsi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(3,) the estimate the crop is centred on (drawn first): `initial_pose`."""
-        return initial_pose(xypsi, rng)
+        return initial_pose(xypsi, rng, self.scale)
 
     def margin(self, rng: np.random.Generator) -> float:
         """The crop box's margin (drawn after the initial pose)."""

@@ -12,6 +12,7 @@ from rhaml_jax.errors import RhamlError
 DEFAULT_COLOR = (0.6, 0.6, 0.6)
 # A robot longer than this along its largest axis was almost certainly modelled in millimetres.
 MM_SUSPECT_EXTENT_M = 20.0
+PIONEER_LENGTH_M = 0.455  # the built-in Pioneer's length (robots.fingerprint: 45.5 x 38.1 x 23.7 cm)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -95,6 +96,14 @@ class RobotModel:
         """(3,) size along x, y, z in metres."""
         b = self.bounds
         return b[1] - b[0]
+
+    @property
+    def world_scale(self) -> float:
+        """The robot's planar length over the built-in Pioneer's, to two decimals: every distance of
+        its world (training depths, scenario paths and rooms, the refiner's training noise) is
+        DESIGN.md's Pioneer distance times this, so a small robot is seen at a Pioneer's pixel sizes
+        (1 for the Pioneer; 0.39 for the 0.178 m TurtleBot3)."""
+        return round(float(max(self.extents[0], self.extents[1])) / PIONEER_LENGTH_M, 2)
 
     @property
     def face_normals(self) -> np.ndarray:
