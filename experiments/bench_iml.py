@@ -20,6 +20,7 @@ def host_chain(frames, images, net, params, stats, zoom, batch=32):
     import jax
 
     from rhaml_jax.amlnet import decode
+    from rhaml_jax.crop import min_range_m
     from rhaml_jax.zoom import apply_correction, mirror_average, zoom_crop
     from rhaml_jax.data import network_image
 
@@ -41,7 +42,8 @@ def host_chain(frames, images, net, params, stats, zoom, batch=32):
             z = jax.device_get(zpredict(zparams, zstats, pad(c)))
             return np.stack([z["x"], z["y"], z["psi"]], 1)[:len(chunk)]
 
-        e = apply_correction(e[:, :2], mirror_average(correct(crops), correct(np.ascontiguousarray(crops[:, :, ::-1]))))
+        e = apply_correction(e[:, :2], mirror_average(correct(crops), correct(np.ascontiguousarray(crops[:, :, ::-1]))),
+                             min_range_m(znet.cfg.zoom_length_m))
         if i:
             seconds += time.perf_counter() - t
         est.append(e)

@@ -33,6 +33,7 @@ def oracle_errors(zoom_dir: Path, root: Path, frames: int, batch: int = 50) -> d
 
     from rhaml_jax.amlnet import load_model
     from rhaml_jax.planar import wrap_angle
+    from rhaml_jax.crop import min_range_m
     from rhaml_jax.zoom import apply_correction, decode_correction
     from rhaml_jax.zoom._source import ZoomSource
 
@@ -45,7 +46,7 @@ def oracle_errors(zoom_dir: Path, root: Path, frames: int, batch: int = 50) -> d
         idx = range(i0, min(src.size, i0 + batch))
         crops = jnp.asarray(np.stack([src.example(i)[0] for i in idx]), jnp.float32) / 255.0
         guess = np.stack([src.guess(i) for i in idx])
-        est.append(np.asarray(apply_correction(guess, np.asarray(predict(crops), np.float64))))
+        est.append(np.asarray(apply_correction(guess, np.asarray(predict(crops), np.float64), min_range_m(net.cfg.zoom_length_m))))
         gt.append(np.stack([src.frames[i].xypsi for i in idx]))
     est, gt = np.concatenate(est), np.concatenate(gt)
     dpsi = np.abs(wrap_angle(est[:, 2] - gt[:, 2]))

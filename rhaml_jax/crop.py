@@ -28,10 +28,18 @@ import numpy as np
 from rhaml_jax.camera import NOMINAL_HEIGHT_M
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["MIN_RANGE_M", "box_affine", "box_around", "crop_image", "crop_image_host", "network_box", "object_box",
+__all__ = ["MIN_RANGE_M", "min_range_m", "box_affine", "box_around", "crop_image", "crop_image_host", "network_box", "object_box",
            "resample", "zoom_box"]
 
-MIN_RANGE_M = 0.5  # estimates nearer than this (or behind the camera) are cropped as if at 0.5 m
+MIN_RANGE_M = 0.5  # the Pioneer's (0.455 m long) `min_range_m`
+REFERENCE_LENGTH_M = 0.455
+
+
+def min_range_m(length_m: float) -> float:
+    """Estimates nearer than this (or behind the camera) are cropped and corrected as if at this
+    range, so that they stay finite: 0.5 m for the 0.455 m Pioneer, in proportion to another
+    robot's length (its world is scaled alike: a TurtleBot3's training depths start at 0.39 m)."""
+    return MIN_RANGE_M * (length_m / REFERENCE_LENGTH_M)
 
 
 def _xp(*arrays):
@@ -61,10 +69,10 @@ def box_affine(box, out_w: int, out_h: int):
 def zoom_box(K, guess_xy, length_m: float, factor: float, centre_z_m: float, h: float = NOMINAL_HEIGHT_M):
     """(..., 4) the zoom-in stage's box for planar estimates (..., 2) (x^, y^) in the observer's
     frame: centred on the projection of (x^, y^, centre_z_m), `factor * length_m * fx / x^` px wide
-    and as tall in metres (x^ clamped to MIN_RANGE_M: estimates behind the camera stay finite)."""
+    and as tall in metres (x^ clamped to `min_range_m(length_m)`: estimates behind the camera stay finite)."""
     xp = _xp(K, guess_xy)
     K, g = xp.asarray(K), xp.asarray(guess_xy)
-    x = xp.maximum(g[..., 0], MIN_RANGE_M)
+    x = xp.maximum(g[..., 0], min_range_m(length_m))
     fx, fy, cx, cy = K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]
     u = cx + fx * (-g[..., 1]) / x  # optical frame of a robot-frame point: (-y, h - z, x)
     v = cy + fy * (h - centre_z_m) / x

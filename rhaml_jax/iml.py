@@ -91,7 +91,7 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
             cm = decode_correction(z.apply(*params.zoom, crops[:, :, ::-1]), z.cfg.angle_head)
             t = mirror_average(t, cm.as_array())
             norm = 0.5 * (norm + cm.sure)
-        xypsi = apply_correction(xypsi[:, :2], t)
+        xypsi = apply_correction(xypsi[:, :2], t, crop.min_range_m(z.cfg.zoom_length_m))
         # A regressor torn between a heading and its opposite answers with a short direction
         # vector (their mean is near zero): the shorter, the likelier a flip. A ranking, not a
         # calibrated probability (BENCHMARKS.md measures how well it ranks flips): 0 for a

@@ -41,6 +41,22 @@ def test_zoom_box_is_the_zoom_stages_crop():
         np.testing.assert_allclose(crop_transform(K, np.array(guess), cfg), ref, atol=1e-9)
 
 
+def test_the_nearest_range_follows_the_robots_length():
+    """0.5 m for the Pioneer's 0.455 m exactly (the shipped zoom stage's crops are unchanged); a
+    TurtleBot3-length (0.138 m) zoom crop stays sized by its range down to 0.15 m, where its world
+    (training depths from 0.39 m) still has robots."""
+    assert crop.min_range_m(get_config("zoom_cpu").zoom_length_m) == crop.MIN_RANGE_M == 0.5
+    small = crop.min_range_m(0.138)
+    assert abs(small - 0.5 * 0.138 / 0.455) < 1e-12
+    K = np.asarray(camera.DEFAULT_CAMERA.K)
+    near = crop.zoom_box(K, np.array([0.4, 0.0]), 0.138, 2.0, 0.1)
+    far = crop.zoom_box(K, np.array([0.8, 0.0]), 0.138, 2.0, 0.1)
+    np.testing.assert_allclose((near[2] - near[0]) / (far[2] - far[0]), 2.0, rtol=1e-9)  # not clamped at 0.5 m
+    clamped = crop.zoom_box(K, np.array([0.05, 0.0]), 0.138, 2.0, 0.1)
+    at_min = crop.zoom_box(K, np.array([small, 0.0]), 0.138, 2.0, 0.1)
+    np.testing.assert_allclose(clamped, at_min)
+
+
 def test_network_box_of_the_default_camera_is_the_whole_image():
     net_K = np.asarray(camera.DEFAULT_CAMERA.resized(160, 128).K)
     np.testing.assert_allclose(crop.network_box(K, (640, 480), net_K, (160, 128)), [-0.5, -0.5, 639.5, 479.5], atol=1e-3)

@@ -27,10 +27,15 @@ CFG = get_config("zoom_cpu")
 
 @settings(max_examples=50, deadline=None)
 @given(x=st.floats(0.6, 9.0), y=st.floats(-4.0, 4.0), psi=st.floats(-3.14, 3.14),
-       gx=st.floats(0.6, 9.0), gy=st.floats(-4.0, 4.0))
-def test_correction_round_trip(x, y, psi, gx, gy):
-    t = correction_targets([x, y, psi], [gx, gy])
-    back = apply_correction([gx, gy], t)
+       gx=st.floats(0.6, 9.0), gy=st.floats(-4.0, 4.0), scale=st.sampled_from([1.0, 0.3]))
+def test_correction_round_trip(x, y, psi, gx, gy, scale):
+    """Also in a TurtleBot-sized world (distances x 0.3, the nearest range clamp with them)."""
+    from rhaml_jax.crop import min_range_m
+
+    x, y, gx, gy = x * scale, y * scale, gx * scale, gy * scale
+    m = min_range_m(0.455 * scale)
+    t = correction_targets([x, y, psi], [gx, gy], m)
+    back = apply_correction([gx, gy], t, m)
     np.testing.assert_allclose(back[:2], [x, y], atol=1e-9)
     assert abs(np.sin(back[2] - psi)) < 1e-9 and np.cos(back[2] - psi) > 0
 

@@ -50,8 +50,8 @@ def decode_correction(out, angle_head: str) -> ZoomCorrection:
     return ZoomCorrection(d["x"], d["y"], d["psi"], jnp.clip(sure, 0.0, 1.0))
 
 
-def _range_bearing(xy):
-    return range_bearing(xy, min_x=MIN_RANGE_M)
+def _range_bearing(xy, min_range: float = MIN_RANGE_M):
+    return range_bearing(xy, min_x=min_range)
 
 
 def box(K, guess_xy, cfg: AMLNetConfig, h: float = NOMINAL_HEIGHT_M):
@@ -78,21 +78,22 @@ def zoom_crop(img: np.ndarray, K: np.ndarray, guess_xy, cfg: AMLNetConfig) -> np
     return crop_image_host(img, box(np.asarray(K, np.float64), np.asarray(guess_xy, np.float64)[:2], cfg), S, S)
 
 
-def correction_targets(true_xypsi, guess_xy):
-    """(..., 3) t = (log r / r^, b - b^, psi - b^) of the true pose against the estimate."""
+def correction_targets(true_xypsi, guess_xy, min_range: float = MIN_RANGE_M):
+    """(..., 3) t = (log r / r^, b - b^, psi - b^) of the true pose against the estimate; x below
+    `min_range` (`crop.min_range_m` of the robot's length) is taken as `min_range`."""
     xp = _xp(true_xypsi, guess_xy)
     true_xypsi = xp.asarray(true_xypsi, xp.float64 if xp is np else None)
-    r, b = _range_bearing(true_xypsi[..., :2])
-    rg, bg = _range_bearing(xp.asarray(guess_xy))
+    r, b = _range_bearing(true_xypsi[..., :2], min_range)
+    rg, bg = _range_bearing(xp.asarray(guess_xy), min_range)
     return xp.stack([xp.log(r / rg), wrap_angle(b - bg), wrap_angle(true_xypsi[..., 2] - bg)], -1)
 
 
-def apply_correction(guess_xy, t):
-    """The inverse of `correction_targets`: (x, y, psi) from the estimate and t (..., 3).
-    NumPy (float64) or JAX in, the same out."""
+def apply_correction(guess_xy, t, min_range: float = MIN_RANGE_M):
+    """The inverse of `correction_targets` (the same `min_range`): (x, y, psi) from the estimate
+    and t (..., 3). NumPy (float64) or JAX in, the same out."""
     xp = _xp(guess_xy, t)
     t = xp.asarray(t, xp.float64 if xp is np else None)
-    rg, bg = _range_bearing(xp.asarray(guess_xy))
+    rg, bg = _range_bearing(xp.asarray(guess_xy), min_range)
     r, b = rg * xp.exp(t[..., 0]), bg + t[..., 1]
     return xp.stack([r * xp.cos(b), r * xp.sin(b), wrap_angle(bg + t[..., 2])], -1)
 

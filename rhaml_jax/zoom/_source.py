@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from rhaml_jax.amlnet.config import AMLNetConfig
+from rhaml_jax.crop import min_range_m
 from rhaml_jax.data import ImageCache
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.zoom._correction import _range_bearing, correction_targets, zoom_crop
@@ -53,7 +54,7 @@ class ZoomSource:
         f = self.frames[index % len(self.frames)]
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, index]))
         dr, db = np.clip(rng.normal(size=2), -3, 3) * [self.jitter.log_range_sigma, np.deg2rad(self.jitter.bearing_sigma_deg)]
-        r, b = _range_bearing(f.xypsi[:2])
+        r, b = _range_bearing(f.xypsi[:2], min_range_m(self.cfg.zoom_length_m))
         r, b = r * np.exp(dr), b + db
         return np.array([r * np.cos(b), r * np.sin(b)])
 
@@ -62,7 +63,7 @@ class ZoomSource:
         f = self.frames[i]
         g = self.guess(index)
         crop = zoom_crop(self._image(i), f.K, g, self.cfg)
-        return crop, 1.0, correction_targets(f.xypsi, g).astype(np.float32)
+        return crop, 1.0, correction_targets(f.xypsi, g, min_range_m(self.cfg.zoom_length_m)).astype(np.float32)
 
 
 def zoom_batch_sources(root: Path, cfg: AMLNetConfig, batch: int, seed: int = 0):
