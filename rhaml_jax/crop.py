@@ -27,19 +27,19 @@ import numpy as np
 
 from rhaml_jax.camera import NOMINAL_HEIGHT_M
 from rhaml_jax.errors import RhamlError
+from rhaml_jax.robots._model import PIONEER_LENGTH_M
 
 __all__ = ["MIN_RANGE_M", "min_range_m", "box_affine", "box_around", "crop_image", "crop_image_host", "network_box", "object_box",
            "resample", "zoom_box"]
 
 MIN_RANGE_M = 0.5  # the Pioneer's (0.455 m long) `min_range_m`
-REFERENCE_LENGTH_M = 0.455
 
 
 def min_range_m(length_m: float) -> float:
     """Estimates nearer than this (or behind the camera) are cropped and corrected as if at this
     range, so that they stay finite: 0.5 m for the 0.455 m Pioneer, in proportion to another
     robot's length (its world is scaled alike: a TurtleBot3's training depths start at 0.39 m)."""
-    return MIN_RANGE_M * (length_m / REFERENCE_LENGTH_M)
+    return MIN_RANGE_M * (length_m / PIONEER_LENGTH_M)
 
 
 def _xp(*arrays):
