@@ -116,14 +116,27 @@ def test_budget_rule():
     p = make_plan(180)
     assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
     assert (p.scale, p.warm_start) == (1.0, True)
-    q = make_plan(45)  # 2700 s: AMLNet 45 % at 1.0 s per step, data 15 % at 25 images/s (604 faces)
-    assert q.amlnet_steps == 1215 and q.images + q.negatives == int(405 / 0.04 / 1.1)
+    q = make_plan(45)  # 2700 s: AMLNet 45 % at 0.9 s per step, data 15 % at 0.024 s per image (604 faces)
+    assert q.images + q.negatives == int(405 / 0.024 / 1.1)
+    # no stage capped: only the rounding is left over for the trainings
+    assert 1350 <= q.amlnet_steps <= 1352 and 3240 <= q.zoom_steps <= 3250
     # a 91,104-face mesh renders at 10 images/s and evaluates at 1.17 s per frame: fewer of both
     t = make_plan(45, faces=91_104, scale=0.39)
     assert t.images + t.negatives == int(405 / 0.1 / 1.1) and t.frames == int(0.18 * 2700 / 1.17 / 6)
-    assert (t.amlnet_steps, t.scale) == (1215, 0.39)
-    # the refiner renders too: 0.12 s per step at 604 faces, 0.5 s at 91,104
-    assert (q.refiner_steps, t.refiner_steps) == (int(270 / 0.12), int(270 / 0.5))
+    assert 1350 <= t.amlnet_steps <= 1352 and t.scale == 0.39
+    # the refiner renders too: 0.13 s per step at 604 faces, 0.5 s at 91,104
+    assert (q.refiner_steps, t.refiner_steps) == (int(270 / 0.13), int(270 / 0.5))
+    # what a capped stage leaves goes to the trainings: at 70 min the data (20,000 images) and the
+    # refiner (3000 steps) are capped, and AMLNet and the zoom stage get their seconds by share
+    S = 70 * 60
+    r = make_plan(70)
+    assert r.images + r.negatives == 20000 and r.refiner_steps == 3000 and r.frames < 500
+    spare = S - 20000 * 0.024 * 1.1 - 0.45 * S - 0.12 * S - 3000 * 0.13 - 6 * r.frames * 0.32
+    assert spare > 100
+    assert abs(r.amlnet_steps - (0.45 * S + spare * 45 / 57) / 0.9) <= 2
+    assert abs(r.zoom_steps - (0.12 * S + spare * 12 / 57) / 0.1) <= 2
+    planned = (r.images + r.negatives) * 0.024 * 1.1 + r.amlnet_steps * 0.9 + r.zoom_steps * 0.1 + 3000 * 0.13 + 6 * r.frames * 0.32
+    assert 0.99 * S <= planned <= S
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     with pytest.raises(RhamlError, match="give at least"):

@@ -8,17 +8,20 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v3 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.04 s per image at 604 mesh faces, 0.1 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
-| amlnet: `cpu_heat`, batch 32 | 45 % | 1.0 s per step | steps |
-| zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.25 s per step | steps |
-| refiner: `refiner_cpu`, batch 16 | 10 % | 0.12 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
-| evaluation: scenarios, held-out set, evaluate | 18 % | 0.5 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
+| data: v3 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.024 s per image (the refiner's tenth included) at 604 mesh faces, 0.1 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
+| amlnet: `cpu_heat`, batch 32 | 45 % | 0.9 s per step | steps |
+| zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
+| refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
+| evaluation: scenarios, held-out set, evaluate | 18 % | 0.32 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
+
+The seconds a capped stage leaves (below) go to AMLNet and the zoom stage, in proportion to
+their shares, up to their caps: the budget is spent on training, not left unused.
 
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
-points measured on this machine, the built-in Pioneer (604 faces: 25 training images/s, 0.12 s
-per refiner step, 2 evaluation frames/s) and the TurtleBot3 Burger URDF (91,104 faces: 10
-images/s, 0.5 s per refiner step, 1.17 s per evaluated frame), joined by a line (BENCHMARKS.md,
-"Your own robot").
+points measured on this machine, the built-in Pioneer (604 faces, the from-scratch 110-minute
+run alone on the machine: 41 training images/s, 0.13 s per refiner step, 0.32 s per evaluated
+frame) and the TurtleBot3 Burger URDF (91,104 faces: 10 images/s, 0.5 s per refiner step, 1.17
+s per evaluated frame), joined by a line (BENCHMARKS.md, "Your own robot").
 
 Every distance of the robot's world is scaled by `world_scale(model)`: the robot's length over
 the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
@@ -43,12 +46,12 @@ from typing import Literal
 from rhaml_jax.errors import RhamlError
 
 SHARES = {"data": 0.15, "amlnet": 0.45, "zoom": 0.12, "refiner": 0.10, "evaluation": 0.18}
-RATES = {"amlnet_step_s": 1.0, "zoom_step_s": 0.25}
+RATES = {"amlnet_step_s": 0.9, "zoom_step_s": 0.1}
 # seconds per image, per evaluated frame and per refiner step: the line through the two measured points above
 MEASURED_FACES = (604, 91_104)
-IMAGE_S = (1 / 25, 1 / 10)
-EVAL_FRAME_S = (1 / 2, 1.17)
-REFINER_STEP_S = (0.12, 0.5)
+IMAGE_S = (0.024, 1 / 10)
+EVAL_FRAME_S = (0.32, 1.17)
+REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
@@ -123,14 +126,23 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
     # the line through the two points, no cheaper than the smaller mesh
     grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
     image_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
-    # the refiner's images (a tenth as many) are counted at the training images' rate
-    images = min(CAPS["images"], int(SHARES["data"] * s / image_s / 1.1))
-    counts = {"images": images,
-              "amlnet_steps": min(CAPS["amlnet_steps"], int(SHARES["amlnet"] * s / RATES["amlnet_step_s"])),
-              "zoom_steps": min(CAPS["zoom_steps"], int(SHARES["zoom"] * s / RATES["zoom_step_s"])),
-              "refiner_steps": min(CAPS["refiner_steps"], int(SHARES["refiner"] * s / refiner_s)),
-              # two scenarios and four held-out parts of about the same size, each evaluated
-              "frames": min(CAPS["frames"], int(SHARES["evaluation"] * s / frame_s / 6))}
+    # seconds per unit of each count: the refiner's images (a tenth as many) at the training
+    # images' rate; two scenarios and four held-out parts of about the same size, each evaluated
+    unit = {"images": image_s * 1.1, "amlnet_steps": RATES["amlnet_step_s"], "zoom_steps": RATES["zoom_step_s"],
+            "refiner_steps": refiner_s, "frames": frame_s * 6}
+    stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
+    seconds = {k: SHARES[stage[k]] * s for k in unit}
+    counts = {k: min(CAPS[k], int(seconds[k] / unit[k])) for k in unit}
+    for _ in range(2):  # what capped stages leave goes to the trainings below their caps, by share
+        spare = s - sum(counts[k] * unit[k] for k in unit)
+        open_ = [k for k in ("amlnet_steps", "zoom_steps") if counts[k] < CAPS[k]]
+        if spare < 1.0 or not open_:
+            break
+        total = sum(seconds[k] for k in open_)
+        for k in open_:
+            seconds[k] += spare * seconds[k] / total
+            counts[k] = min(CAPS[k], int(seconds[k] / unit[k]))
+    images = counts["images"]
     short = [k for k, v in counts.items() if v < MINIMA[k]]
     if short:
         need = max(MINIMA[k] / counts[k] * budget_minutes if counts[k] else float("inf") for k in short)
