@@ -153,3 +153,15 @@ def test_warm_start_networks_are_shipped_with_the_plans_configs():
     for config in (p.amlnet_config, p.zoom_config):
         net, _, _ = load_model(SHIPPED / WARM_START[config])
         assert net.cfg.name == config
+
+
+def test_report_plots_a_set_where_nothing_was_detected(tmp_path):
+    """A 30-minute Pioneer run detected nothing in one set; its report must still be written."""
+    from rhaml_jax.fitting._report import _plots
+
+    seen = {"observed": True, "est": [2.5, 0.1, 0.2], "gt": [2.5, 0.0, 0.0]}
+    missed = {"observed": True, "est": None, "gt": [2.5, 0.0, 0.0]}
+    results = {("circle", "iml"): {"frames": [missed, missed]}, ("circle", "iml,ir,pgo"): {"frames": [missed]},
+               ("sine", "iml"): {"frames": [seen, missed]}, ("sine", "iml,ir"): {"frames": [seen]}}
+    assert _plots(tmp_path, results) == ["report_trajectories.png", "report_errors.png"]
+    assert (tmp_path / "report_trajectories.png").stat().st_size > 0

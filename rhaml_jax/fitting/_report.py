@@ -51,8 +51,9 @@ def _plots(out: Path, results: dict) -> list[str]:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, name in zip(axes, ("circle", "sine")):
         for modules, style in (("iml", "."), ("iml,ir,pgo", "-")):
-            if (name, modules) in results:
-                est = np.array([f["est"] for f in _seen(results[name, modules])])
+            seen = _seen(results[name, modules]) if (name, modules) in results else []
+            if seen:  # a set where nothing was detected has no trajectory to draw
+                est = np.array([f["est"] for f in seen])
                 ax.plot(est[:, 0], est[:, 1], style, ms=2, lw=1, label=modules.upper().replace(",", "+"))
         if (name, "iml") in results:
             gt = np.array([f["gt"] for f in results[name, "iml"]["frames"] if f["observed"]])
