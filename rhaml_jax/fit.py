@@ -48,10 +48,10 @@ class Args:
 def main(argv: list[str] | None = None):
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
-    from rhaml_jax.fitting import load_checked_robot, make_plan, run_fit, world_scale
+    from rhaml_jax.fitting import load_checked_robot, make_plan, run_fit
 
     model = load_checked_robot(args.robot)
-    plan = make_plan(args.budget_minutes, args.size, len(model.faces), world_scale(model), not args.from_scratch)
+    plan = make_plan(args.budget_minutes, args.size, len(model.faces), model.world_scale, not args.from_scratch)
     state = run_fit(args.robot, args.out, plan, args.resume, args.workers, args.seed)
     print(f"fit: {args.out / 'report.md'} ({sum(state.done.values()) / 60:.1f} min); networks in {args.out / 'networks'}")
     return state

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.fitting import STAGES, load_checked_robot, make_plan, run_fit, world_scale
+from rhaml_jax.fitting import STAGES, load_checked_robot, make_plan, run_fit
 from tests.conftest import shared_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,7 +28,7 @@ def _turtlebot() -> str:
 def killed_and_resumed(tmp_path_factory):
     out = tmp_path_factory.mktemp("fit") / "tb"
     robot = _turtlebot()
-    plan = make_plan(5, "tiny", scale=world_scale(load_checked_robot(robot)))
+    plan = make_plan(5, "tiny", scale=load_checked_robot(robot).world_scale)
     first = run_fit(robot, out, plan, workers=1, stop_after="amlnet", log=lambda s: None)
     assert list(first.done) == ["data", "amlnet"]
     amlnet_ckpt = sorted((out / "runs" / "amlnet" / "checkpoints").iterdir())

@@ -59,7 +59,7 @@ class SynthConfig:
 
     def scaled(self, scale: float) -> "SynthConfig":
         """This config with its working range of depths times `scale` (a smaller robot's world,
-        `rhaml_jax.fitting.world_scale`); itself at 1."""
+        `RobotModel.world_scale`); itself at 1."""
         check_scale(scale)
         return self if scale == 1.0 else dataclasses.replace(self, depth_m=(self.depth_m[0] * scale, self.depth_m[1] * scale))
 

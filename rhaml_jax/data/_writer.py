@@ -217,7 +217,7 @@ def scenario_poses(name: str, frames: int, seed: int, scale: float = 1.0):
     [(scene_id, observer truth (N, 3), observed truth (N, 3), observer odo, observed odo)] and the room bounds.
 
     `scale` multiplies every distance (paths and room; headings unchanged): DESIGN.md's scenarios
-    at 1, a smaller robot's world below it (`rhaml_jax.fitting.world_scale`)."""
+    at 1, a smaller robot's world below it (`RobotModel.world_scale`)."""
     from rhaml_jax.errors import RhamlError
 
     check_scale(scale)

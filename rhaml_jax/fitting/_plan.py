@@ -23,7 +23,7 @@ run alone on the machine: 41 training images/s, 0.13 s per refiner step, 0.32 s 
 frame) and the TurtleBot3 Burger URDF (91,104 faces: 10 images/s, 0.5 s per refiner step, 1.17
 s per evaluated frame), joined by a line (BENCHMARKS.md, "Your own robot").
 
-Every distance of the robot's world is scaled by `world_scale(model)`: the robot's length over
+Every distance of the robot's world is scaled by `RobotModel.world_scale`: the robot's length over
 the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
 0.178 m TurtleBot3), so that a small robot is seen at the pixel sizes a Pioneer is at its
 distances: the training depths (1-8 m for the Pioneer), the circle and sine paths and their
@@ -104,11 +104,6 @@ class Plan:
     @property
     def eval_height(self) -> int:
         return self.eval_width * 3 // 4
-
-
-def world_scale(model) -> float:
-    """The robot's planar length over the built-in Pioneer's, to two decimals (`RobotModel.world_scale`)."""
-    return model.world_scale
 
 
 def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces: int = MEASURED_FACES[0], scale: float = 1.0,
