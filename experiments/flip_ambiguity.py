@@ -30,6 +30,7 @@ import tyro
 
 from rhaml_jax import allocator, data, frames, render
 from rhaml_jax.camera import T_cam_robot
+from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine import AlignConfig, align
 
 
@@ -45,10 +46,6 @@ class Args:
     json: Path | None = None
 
 
-def wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def main(args: Args):
     allocator.tune_allocator()
     cfg = AlignConfig(flip=False, mirror=False, coarse_stages=(), camera_height_m=args.camera_height_m)
@@ -58,7 +55,7 @@ def main(args: Args):
         flipped = set()
         if args.iml_json:
             for f in json.loads(Path(args.iml_json[k]).read_text())["frames"]:
-                if f.get("observed") and f.get("detected") and abs(wrap(f["est"][2] - f["gt"][2])) > np.pi / 2:
+                if f.get("observed") and f.get("detected") and abs(wrap_angle(f["est"][2] - f["gt"][2])) > np.pi / 2:
                     flipped.add(f["im_id"])
         mesh = render.as_mesh(data.load_bop_model(root))
         recs = [f for i, f in enumerate(data.read_bop(root, "test")) if f.observed and (i % args.stride == 0 or f.im_id in flipped)]
@@ -79,7 +76,7 @@ def main(args: Args):
             d_render = float(np.abs(im[0] - im[1])[union].sum() / (3 * n))
             res_true = float(np.abs(rgb - im[0])[union].sum() / (3 * n))
             res_flip = float(np.abs(rgb - im[1])[union].sum() / (3 * n))
-            rel = float(np.degrees(wrap(gt[2] - np.arctan2(gt[1], gt[0]))))
+            rel = float(np.degrees(wrap_angle(gt[2] - np.arctan2(gt[1], gt[0]))))
             rows.append({"set": root.name, "im_id": f.im_id, "range_m": float(np.hypot(gt[0], gt[1])), "rel_deg": rel,
                          "mask_px": int(mask.sum()), "sil_px": int((m[1] != (mask > 0.5)).sum()),
                          "sil_true_px": int((m[0] != (mask > 0.5)).sum()), "d_render": d_render,

@@ -23,6 +23,7 @@ import tyro
 from rhaml_jax import crop as _crop
 from rhaml_jax import data, render
 from rhaml_jax.amlnet.model import LUMA
+from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine import RefineConfig, _corners, _T_cam, refine, shipped_refiner
 
 
@@ -36,10 +37,6 @@ class Args:
     crop: int = 96
     margins: tuple[float, ...] = (0.0, 0.02, 0.05)
     camera_height_m: float = 0.30
-
-
-def wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def ncc(a, b):
@@ -67,7 +64,7 @@ def main(a: Args):
         est = {f["im_id"]: f for f in json.loads(ij.read_text())["frames"] if f["observed"] and f["detected"]}
         for k, fr in enumerate(f for f in data.read_bop(root, "test") if f.im_id in est):
             e = est[fr.im_id]
-            was_flipped = abs(wrap(e["est"][2] - e["gt"][2])) > np.pi / 2
+            was_flipped = abs(wrap_angle(e["est"][2] - e["gt"][2])) > np.pi / 2
             if k % a.stride and not was_flipped:
                 continue
             im = jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255
@@ -75,7 +72,7 @@ def main(a: Args):
             lo, lr = obs @ np.asarray(LUMA), rgb @ np.asarray(LUMA)
             c = [ncc(lr[j][m[j] > 0.5], lo[m[j] > 0.5]) for j in range(2)]
             diffs.append(c[1] - c[0])  # > 0: the turned hypothesis correlates better
-            flipped.append(abs(wrap(xyp[0][2] - fr.xypsi[2])) > np.pi / 2)
+            flipped.append(abs(wrap_angle(xyp[0][2] - fr.xypsi[2])) > np.pi / 2)
     d, f = np.array(diffs), np.array(flipped)
     for t in a.margins:
         turn = d > t

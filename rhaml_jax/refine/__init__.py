@@ -30,7 +30,7 @@ import numpy as np
 from rhaml_jax import crop as _crop
 from rhaml_jax import frames, render
 from rhaml_jax.camera import T_cam_robot
-from rhaml_jax.refine.alignment import AlignConfig, AlignResult, align, align_crop, align_to, check_init
+from rhaml_jax.refine.alignment import AlignConfig, AlignResult, _corners, align, align_crop, align_to, check_init
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
@@ -86,12 +86,6 @@ class RefineResult(NamedTuple):
 
 def _T_cam(xypsi, h):
     return T_cam_robot(h) @ frames.se3_from_xypsi(xypsi)
-
-
-def _corners(mesh):
-    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
-    sel = jnp.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], lo.dtype)
-    return lo + sel * (hi - lo)
 
 
 def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None,
