@@ -17,7 +17,7 @@ def _fmt(v) -> str:
 
 def _results(out: Path, plan: Plan) -> dict[tuple[str, str], dict]:
     """(evaluation set, modules) -> evaluate's JSON, for every result written."""
-    from rhaml_jax.fitting._run import eval_modules
+    from rhaml_jax.fitting._plan import eval_modules
 
     found = {}
     for name in plan.eval_sets:

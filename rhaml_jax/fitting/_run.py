@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.fitting._plan import Plan
+from rhaml_jax.fitting._plan import Plan, eval_modules
 
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
@@ -185,12 +185,6 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 def eval_folder(ev: Path, name: str) -> Path:
     """The BOP folder of an evaluation set: our scenario (circle, sine) or a held-out part (heldout/PART)."""
     return ev.joinpath(*name.split("/"))
-
-
-def eval_modules(name: str) -> tuple[str, ...]:
-    """The module combinations run on an evaluation set (pgo needs a scenario's odometry)."""
-    scenario = name.split("/")[-1] in ("circle", "sine")
-    return ("iml", "iml,ir", "iml,ir,pgo") if scenario else ("iml", "iml,ir")
 
 
 def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, workers: int = 2, seed: int = 0,
