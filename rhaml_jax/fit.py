@@ -7,7 +7,8 @@ trains AMLNet, its zoom stage (its crop sized to the robot) and the refiner, exp
 DIR/networks/ (for `evaluate --amlnet/--zoom/--refiner` and the pipeline), evaluates them on
 generated circle + sine scenarios and on the held-out appearance set, and writes DIR/report.md.
 Distances are scaled to the robot's size and AMLNet and the zoom stage fine-tune the shipped
-Pioneer networks (heat_cpu, zoom_luma_cpu) unless --from-scratch (`rhaml_jax.fitting._plan`).
+Pioneer networks (heat_cpu, zoom_luma_cpu) unless --from-scratch (`rhaml_jax.fitting._plan`):
+then the zoom stage learns on plain-look images first, where it finds the front/back cue.
 The budget is split between the stages by the rule in `rhaml_jax.fitting._plan`; killed
 anywhere, `--resume` continues (finished stages are skipped, trainings resume exactly).
 """

@@ -55,6 +55,7 @@ RATES = {"amlnet_step_s": 0.9, "zoom_step_s": 0.1}
 # seconds per image, per evaluated frame and per refiner step: the line through the two measured points above
 MEASURED_FACES = (604, 91_104)
 IMAGE_S = (0.024, 1 / 10)
+V1_IMAGE_S = (0.009, 1 / 10)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
 EVAL_FRAME_S = (0.32, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
@@ -62,6 +63,8 @@ EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/backgr
 EVAL_COMPILE_S = 32.0
 """seconds each `evaluate` run spends compiling before its first frame (the 110- and 30-minute
 runs: about 510 s over their 16 runs), whatever the frame count"""
+V1_FRACTION = 0.5  # from scratch: v1 images per v3 image
+ZOOM_V1_FRACTION = 0.5  # from scratch: the zoom stage's steps spent on v1 images before the v3 ones
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
 
 
@@ -97,6 +100,10 @@ class Plan:
     """every distance of the robot's world (training depths, scenario paths and rooms) times this"""
     warm_start: bool
     """AMLNet and the zoom stage start from the shipped Pioneer networks (fine-tuning)"""
+    v1_images: int
+    """from scratch, the curriculum's plain-look (v1) training images (0 when warm-started)"""
+    zoom_v1_steps: int
+    """from scratch, the zoom stage's first steps, on the v1 images (of `zoom_steps`; 0 when warm-started)"""
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "plan") -> "Plan":
@@ -122,33 +129,35 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
         raise RhamlError(f"--budget-minutes {budget_minutes}: must be positive")
     if size == "tiny":  # test-size networks have no shipped weights to start from
         return Plan("tiny", "tiny", "tiny_zoom", "refiner_micro", 160, 24, 6, 12, 4, 4, 4, 8, 8, 8, 8, 160,
-                    ("circle", "heldout/circle"), budget_minutes, scale, False)
+                    ("circle", "heldout/circle"), budget_minutes, scale, False, 12, 2)
     if size != "cpu":
         raise RhamlError(f"--size {size!r}: expected cpu or tiny")
-    counts = _counts(budget_minutes * 60.0, faces)
+    counts = _counts(budget_minutes * 60.0, faces, not warm_start)
     short = [k for k, v in counts.items() if v < MINIMA[k]]
     if short:
         need = next((m for m in range(math.ceil(budget_minutes), 10_000)
-                     if all(v >= MINIMA[k] for k, v in _counts(m * 60.0, faces).items())), None)
+                     if all(v >= MINIMA[k] for k, v in _counts(m * 60.0, faces, not warm_start).items())), None)
         raise RhamlError(f"--budget-minutes {budget_minutes:g}: too small to train anything "
                          f"({', '.join(f'{k} {counts[k]} < {MINIMA[k]}' for k in short)}); "
                          f"give at least {need} minutes")
     images = counts["images"]
     return Plan("cpu", "cpu_heat", "zoom_cpu_luma", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
                 counts["amlnet_steps"], counts["zoom_steps"], counts["refiner_steps"], 32, 32, 16, counts["frames"], 640,
-                EVAL_SETS, budget_minutes, scale, warm_start)
+                EVAL_SETS, budget_minutes, scale, warm_start, 0 if warm_start else int(images * V1_FRACTION),
+                0 if warm_start else int(counts["zoom_steps"] * ZOOM_V1_FRACTION))
 
 
-def _counts(budget_s: float, faces: int) -> dict[str, int]:
+def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     """Images, steps and frames a budget buys (module docstring); zeros when the evaluation's
     compilations take it all."""
     s = budget_s - eval_compile_s()  # what the shares split
     # the line through the two points, no cheaper than the smaller mesh
     grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
-    image_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
+    image_s, v1_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, V1_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
     # seconds per unit of each count: the refiner's images (a tenth as many) at the training
-    # images' rate; two scenarios and four held-out parts of about the same size, each evaluated
-    unit = {"images": image_s * 1.1, "amlnet_steps": RATES["amlnet_step_s"], "zoom_steps": RATES["zoom_step_s"],
+    # images' rate, and the curriculum's v1 images; two scenarios and four held-out parts of
+    # about the same size, each evaluated
+    unit = {"images": image_s * 1.1 + (V1_FRACTION * v1_s if curriculum else 0.0), "amlnet_steps": RATES["amlnet_step_s"], "zoom_steps": RATES["zoom_step_s"],
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}

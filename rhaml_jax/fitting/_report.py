@@ -104,11 +104,13 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              f"{plan.refiner_steps} steps; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
              f"Distances x {plan.scale:g} of the Pioneer's (training depths {depths[0]:.2f}-{depths[1]:.2f} m, "
              f"circle radius {2.0 * plan.scale:.2f} m about {4.5 * plan.scale:.2f} m ahead); AMLNet and zoom "
-             + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else "trained from random weights."),
+             + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else
+                f"trained from random weights, the zoom stage's first {plan.zoom_v1_steps} steps on {plan.v1_images} "
+                "plain-look (v1) images."),
              "", "| stage | seconds |", "| --- | --- |"]
     lines += [f"| {k} | {v:.0f} |" for k, v in state["done"].items()]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]
-    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "zoom", "refiner") if (out / "runs" / k / "metrics.png").exists()]
+    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "zoom_v1", "zoom", "refiner") if (out / "runs" / k / "metrics.png").exists()]
     lines += ["", "## Evaluation", "",
               "Over the frames with the robot in view that were detected: mean / std / median; flips: |dpsi| > 90 deg; "
               "detection over every frame. `heldout/*`: the held-out appearance set (settings outside every training "

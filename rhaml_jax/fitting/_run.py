@@ -5,7 +5,8 @@ index), trainings continue from their last checkpoint).
 DIR/
   fit.json            robot fingerprint, plan, finished stages and their seconds
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
-  runs/{amlnet,zoom,refiner}                           training runs (checkpoints, metrics.jsonl, metrics.png)
+  data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP)
+  runs/{amlnet,zoom_v1,zoom,refiner}                   training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
   report.md, report_*.png                              the report
@@ -26,7 +27,7 @@ from rhaml_jax.fitting._plan import Plan, eval_modules
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
 REPAINT_PROB = 0.5
-STAGES = ("data", "amlnet", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
+STAGES = ("data", "amlnet", "zoom_v1", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 
 
@@ -124,14 +125,18 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
                            workers, cfg=v3)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
                            plan.refine_images, 0, workers, cfg=v3)
+        if plan.v1_images:  # the curriculum's plain look (zoom_v1_stage)
+            write_training_set(data / "train_v1", robot_spec, _camera(plan.width, plan.height), seed + 2, plan.v1_images, 0,
+                               workers, cfg=SynthConfig(appearance=None).scaled(plan.scale))
 
-    def train(stage: str, config: str, folder: str, steps: int, batch: int, val_times: int, val_batches: int, *extra):
-        """One `train` run in runs/STAGE, resumed if it has checkpoints."""
+    def train(stage: str, config: str, folder: str, steps: int, batch: int, val_times: int, val_batches: int, *extra,
+              stage_dir: str | None = None):
+        """One `train` run in runs/STAGE (or runs/STAGE_DIR), resumed if it has checkpoints."""
         tiny = plan.size == "tiny"
         _train(["--stage", stage, "--robot", robot_spec, "--config", config, "--data", str(data / folder), *extra,
                 "--steps", str(steps), "--batch", str(batch), "--seed", str(seed),
                 "--val-every", str(max(1, steps // val_times)), "--ckpt-every", str(max(1, min(250, steps // 4))),
-                "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / stage)
+                "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / (stage_dir or stage))
 
     def warm(config: str) -> list[str]:
         """--init from the shipped network of `config`, at half the default learning rate (Plan.warm_start)."""
@@ -139,8 +144,19 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
     amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8,  # noqa: E731
                                  *warm(plan.amlnet_config))
-    zoom_stage = lambda: train("zoom", plan.zoom_config, "train", plan.zoom_steps, plan.zoom_batch, 8, 8,  # noqa: E731
-                               "--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526", *warm(plan.zoom_config))
+    zoom_args = ("--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526")
+
+    def zoom_v1_stage():
+        """From scratch, the zoom stage first learns on plain-look images, where the front/back cue is
+        found within minutes (BENCHMARKS.md, "The Pioneer from nothing"); warm-started, nothing."""
+        if plan.zoom_v1_steps:
+            train("zoom", plan.zoom_config, "train_v1", plan.zoom_v1_steps, plan.zoom_batch, 4, 8, *zoom_args, stage_dir="zoom_v1")
+
+    def zoom_stage():
+        start = (["--init", str(runs / "zoom_v1"), "--lr", "5e-4", "--warmup", "100"] if plan.zoom_v1_steps
+                 else warm(plan.zoom_config))
+        train("zoom", plan.zoom_config, "train", plan.zoom_steps - plan.zoom_v1_steps, plan.zoom_batch, 8, 8, *zoom_args, *start)
+
     refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
 
     def export_stage():
@@ -179,7 +195,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         write_report(out, model, plan)
 
     return {"data": data_stage, "amlnet": amlnet_stage, "zoom": zoom_stage, "refiner": refiner_stage,
-            "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
+            "zoom_v1": zoom_v1_stage, "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
 
 
 def eval_folder(ev: Path, name: str) -> Path:
