@@ -219,6 +219,26 @@ def _edit_json(path: Path, fn):
     path.write_text(json.dumps(d))
 
 
+def test_mixed_sets_read_as_one(training_set, tmp_path):
+    """fit's curriculum trains on v3 and v1 images as one set: every frame of each, once, with its
+    own labels; a set of another camera is refused by name and nothing is linked."""
+    other = tmp_path / "v1"
+    write_training_set(other, "pioneer3dx", SMALL, seed=8, num=6, negatives=0, workers=1, cfg=data.SynthConfig(appearance=None))
+    counts = data.mix_sets(tmp_path / "mix", [training_set, other])
+    assert data.mix_sets(tmp_path / "mix", [training_set, other]) == counts  # run again: nothing changes
+    for split in ("train", "val"):
+        mixed = data.read_bop(tmp_path / "mix", split)
+        parts = [data.read_bop(s, split) for s in (training_set, other)]
+        assert len(mixed) == sum(len(p) for p in parts)
+        np.testing.assert_array_equal(np.stack([f.K for f in mixed]), np.stack([f.K for p in parts for f in p]))
+        assert sorted(map(str, (f.rgb.resolve() for f in mixed))) == sorted(str(f.rgb.resolve()) for p in parts for f in p)
+    wide = tmp_path / "wide"
+    write_training_set(wide, "pioneer3dx", DEFAULT_CAMERA.resized(200, 150), seed=8, num=2, negatives=0, workers=1)
+    with pytest.raises(RhamlError, match="wide/camera.json differs .*not the same robot and camera"):
+        data.mix_sets(tmp_path / "mix2", [training_set, wide])
+    assert not (tmp_path / "mix2").exists()
+
+
 def test_corrupt_png(small_copy):
     p = small_copy / "train/000000/rgb/000003.png"
     p.write_bytes(b"\x89PNG\r\n\x1a\n garbage")

@@ -146,6 +146,14 @@ def test_budget_rule():
     with pytest.raises(RhamlError, match=r"frames 19 < 20\); give at least 13 minutes"):
         make_plan(12)
     make_plan(13)  # the smallest budget it names is enough
+    # from random weights AMLNet needs 2,000 steps (30 minutes, 901 steps, detected nothing)
+    with pytest.raises(RhamlError, match=r"from scratch \(amlnet_steps 1544 < 2000\); give at least 75 minutes"):
+        make_plan(60, warm_start=False)
+    scratch = make_plan(75, warm_start=False)
+    assert scratch.amlnet_steps >= 2000 and not scratch.warm_start
+    # its curriculum: half as many v1 images as v3 ones, the zoom stage's first half on them
+    assert scratch.v1_images == (scratch.images + scratch.negatives) // 2 and scratch.zoom_v1_steps == scratch.zoom_steps // 2
+    assert (make_plan(75).v1_images, make_plan(75).zoom_v1_steps) == (0, 0)  # fine-tuning needs none
     assert not make_plan(5, "tiny").warm_start  # test-size networks have no shipped weights
     assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)
 

@@ -5,7 +5,8 @@
 - `read_bop`, `load_rgb`, `load_mask`, `load_bop_model`: read ours and other tools' BOP sets;
   `write_dataset_header`: a BOP set's camera.json and models/ (the robot in millimetres).
 - `read_tum`, `write_tum`: trajectory files.
-- `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs).
+- `write_training_set`, `write_scenario`: whole data sets (what `python -m rhaml_jax.generate` runs);
+  `mix_sets`: several training sets of one robot as one (symlinks).
 - `AppearanceConfig`: the v2 appearance randomisation's factors and ranges (`SynthConfig.appearance`;
   None gives the v1 data); `HeldoutConfig`, `check_heldout`, `write_heldout`: the held-out
   appearance benchmark, outside every training range; `sample_look`, `sample_heldout_look`: one
@@ -43,3 +44,7 @@ __all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "defer
 from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
 
 __all__ += ["write_sequence"]
+
+from rhaml_jax.data._mix import mix_sets  # noqa: E402
+
+__all__ += ["mix_sets"]
