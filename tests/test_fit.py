@@ -44,6 +44,9 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     assert sorted((out / "runs" / "amlnet" / "checkpoints").iterdir()) == amlnet_ckpt
     for net in ("amlnet", "zoom", "refiner"):
         assert (out / "networks" / net / "checkpoints").is_dir()
+    # from scratch (tiny plans are): the zoom stage's curriculum, v1 images first, then v3 and v1 together
+    assert (out / "runs" / "zoom_v1" / "checkpoints").is_dir()
+    assert {p.resolve().parents[1].name for p in (out / "data" / "train_mix" / "train").iterdir()} == {"train", "train_v1"}
     report = (out / "report.md").read_text()
     assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
     assert (out / "report_trajectories.png").stat().st_size > 1000

@@ -5,7 +5,7 @@ index), trainings continue from their last checkpoint).
 DIR/
   fit.json            robot fingerprint, plan, finished stages and their seconds
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
-  data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP)
+  data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
   runs/{amlnet,zoom_v1,zoom,refiner}                   training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
@@ -153,9 +153,14 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
             train("zoom", plan.zoom_config, "train_v1", plan.zoom_v1_steps, plan.zoom_batch, 4, 8, *zoom_args, stage_dir="zoom_v1")
 
     def zoom_stage():
-        start = (["--init", str(runs / "zoom_v1"), "--lr", "5e-4", "--warmup", "100"] if plan.zoom_v1_steps
-                 else warm(plan.zoom_config))
-        train("zoom", plan.zoom_config, "train", plan.zoom_steps - plan.zoom_v1_steps, plan.zoom_batch, 8, 8, *zoom_args, *start)
+        if plan.zoom_v1_steps:  # the curriculum's second half: v3 and v1 images together, from zoom_v1
+            from rhaml_jax.data import mix_sets
+
+            mix_sets(data / "train_mix", [data / "train", data / "train_v1"])
+            folder, start = "train_mix", ["--init", str(runs / "zoom_v1"), "--lr", "5e-4", "--warmup", "100"]
+        else:
+            folder, start = "train", warm(plan.zoom_config)
+        train("zoom", plan.zoom_config, folder, plan.zoom_steps - plan.zoom_v1_steps, plan.zoom_batch, 8, 8, *zoom_args, *start)
 
     refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
 
