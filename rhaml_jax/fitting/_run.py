@@ -138,9 +138,13 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
                 "--val-every", str(max(1, steps // val_times)), "--ckpt-every", str(max(1, min(250, steps // 4))),
                 "--no-progress" if tiny else "--progress", "--val-batches", str(1 if tiny else val_batches)], runs / (stage_dir or stage))
 
+    def init_from(weights: Path) -> list[str]:
+        """Fine-tuning: --init from `weights`, at half the default learning rate."""
+        return ["--init", str(weights), "--lr", "5e-4", "--warmup", "100"]
+
     def warm(config: str) -> list[str]:
-        """--init from the shipped network of `config`, at half the default learning rate (Plan.warm_start)."""
-        return ["--init", str(SHIPPED / WARM_START[config]), "--lr", "5e-4", "--warmup", "100"] if plan.warm_start else []
+        """From the shipped network of `config` (Plan.warm_start), else from random weights."""
+        return init_from(SHIPPED / WARM_START[config]) if plan.warm_start else []
 
     amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8,  # noqa: E731
                                  *warm(plan.amlnet_config))
@@ -148,7 +152,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
     def zoom_v1_stage():
         """From scratch, the zoom stage first learns on plain-look images, where the front/back cue is
-        found within minutes (BENCHMARKS.md, "The Pioneer from nothing"); warm-started, nothing."""
+        found within minutes (BENCHMARKS.md, "A curriculum for the heading"); warm-started, nothing."""
         if plan.zoom_v1_steps:
             train("zoom", plan.zoom_config, "train_v1", plan.zoom_v1_steps, plan.zoom_batch, 4, 8, *zoom_args, stage_dir="zoom_v1")
 
@@ -157,7 +161,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
             from rhaml_jax.data import mix_sets
 
             mix_sets(data / "train_mix", [data / "train", data / "train_v1"])
-            folder, start = "train_mix", ["--init", str(runs / "zoom_v1"), "--lr", "5e-4", "--warmup", "100"]
+            folder, start = "train_mix", init_from(runs / "zoom_v1")
         else:
             folder, start = "train", warm(plan.zoom_config)
         train("zoom", plan.zoom_config, folder, plan.zoom_steps - plan.zoom_v1_steps, plan.zoom_batch, 8, 8, *zoom_args, *start)
@@ -199,8 +203,8 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
         write_report(out, model, plan)
 
-    return {"data": data_stage, "amlnet": amlnet_stage, "zoom": zoom_stage, "refiner": refiner_stage,
-            "zoom_v1": zoom_v1_stage, "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
+    return {"data": data_stage, "amlnet": amlnet_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage, "refiner": refiner_stage,
+            "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
 
 
 def eval_folder(ev: Path, name: str) -> Path:
