@@ -154,8 +154,11 @@ def test_budget_rule():
         make_plan(60, warm_start=False)
     scratch = make_plan(75, warm_start=False)
     assert scratch.amlnet_steps >= 2000 and not scratch.warm_start
-    # its curriculum: half as many v1 images as v3 ones, the zoom stage's first half on them
-    assert scratch.v1_images == (scratch.images + scratch.negatives) // 2 and scratch.zoom_v1_steps == scratch.zoom_steps // 2
+    # its curriculum: half as many v1 images as v3 ones, the zoom stage's first 12/17 on them
+    assert scratch.v1_images == (scratch.images + scratch.negatives) // 2 and scratch.zoom_v1_steps == round(scratch.zoom_steps * 12 / 17)
+    # from scratch the zoom stage may run longer (17,000 steps: 12,000 on v1 images, 5,000 on the mix)
+    long = make_plan(130, warm_start=False)
+    assert (long.zoom_steps, long.zoom_v1_steps) == (17_000, 12_000) and make_plan(130).zoom_steps == 10_000
     assert (make_plan(75).v1_images, make_plan(75).zoom_v1_steps) == (0, 0)  # fine-tuning needs none
     assert not make_plan(5, "tiny").warm_start  # test-size networks have no shipped weights
     assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)
