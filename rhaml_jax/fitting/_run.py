@@ -152,12 +152,12 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
     def zoom_v1_stage():
         """From scratch, the zoom stage first learns on plain-look images, where the front/back cue is
-        found within minutes (BENCHMARKS.md, "A curriculum for the heading"); warm-started, nothing."""
+        found (BENCHMARKS.md, "A curriculum for the heading"); warm-started, nothing."""
         if plan.zoom_v1_steps:
             train("zoom", plan.zoom_config, "train_v1", plan.zoom_v1_steps, plan.zoom_batch, 4, 8, *zoom_args, stage_dir="zoom_v1")
 
     def zoom_stage():
-        if plan.zoom_v1_steps:  # the curriculum's second half: v3 and v1 images together, from zoom_v1
+        if plan.zoom_v1_steps:  # the curriculum's second part: v3 and v1 images together, from zoom_v1
             from rhaml_jax.data import mix_sets
 
             mix_sets(data / "train_mix", [data / "train", data / "train_v1"])
