@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-COMMANDS = ("demo", "generate", "train", "evaluate", "pgo", "info", "fuse_maps", "explore", "fit")
+COMMANDS = ("demo", "generate", "train", "evaluate", "calibrate_flips", "pgo", "info", "fuse_maps", "explore", "fit")
 
 
 def main() -> None:

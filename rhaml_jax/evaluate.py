@@ -70,6 +70,9 @@ class Args:
     allow_other_robot: bool = False
     """run networks made for another robot than the data set's (a deliberate transfer test; by
     default that is refused, comparing the robot fingerprints the checkpoints store)"""
+    raw_flip_ranking: bool = False
+    """IML's flip_prob as the zoom stage's raw front/back ranking, ignoring the zoom checkpoint's
+    calibration (what `calibrate_flips` fits on)"""
 
 
 def _table(m: dict) -> str:
@@ -120,7 +123,8 @@ def _load(args: Args, modules):
 
     robot, path = _data_robot(args)
     check = None if args.allow_other_robot else robot
-    iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror, check, str(path))
+    iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror, check, str(path),
+                                         calibrated=not args.raw_flip_ranking)
     refiner = refiner_params = None
     if "ir" in modules:
         from rhaml_jax import refine
@@ -149,6 +153,13 @@ def run(args: Args) -> dict:
           "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
           "scenes": len(runs)}
     rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
+    if model.iml.zoom is not None:  # how well IML's flip_prob predicts its flips (zoom.calibration_metrics)
+        from rhaml_jax.zoom import calibration_metrics, flipped
+
+        seen = [r for r in rows if r["observed"] and r["detected"]]
+        m["iml_flip"] = calibration_metrics([r["iml_flip_prob"] for r in seen],
+                                            flipped([r["iml_est"][2] for r in seen], [r["gt"][2] for r in seen]))
+        m["iml_flip"]["calibrated"] = model.iml.flip_calibration is not None
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows))}
@@ -157,7 +168,7 @@ def run(args: Args) -> dict:
 
 def frame_rows(run, fused: bool) -> list[dict]:
     """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
-    and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    and flip probability and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
     res, data = run.result, run.data
     rows = []
     for i, f in enumerate(data.frames):
@@ -166,7 +177,7 @@ def frame_rows(run, fused: bool) -> list[dict]:
                "est": [float(v) for v in res.xypsi[i]] if shown else None,
                "gt": [float(v) for v in data.gt[i]] if f.observed else None,
                "o": float(res.iml.o[i]), "detected": bool(res.detected[i]),
-               "iml_est": [float(v) for v in res.iml.xypsi[i]]}
+               "iml_est": [float(v) for v in res.iml.xypsi[i]], "iml_flip_prob": float(res.iml.flip_prob[i])}
         if res.fusion is not None:
             row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
         rows.append(row)

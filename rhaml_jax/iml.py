@@ -48,6 +48,7 @@ class IMLModel:
     amlnet: object  # amlnet.Net (its cfg and graphdef are used)
     zoom: object | None = None  # the zoom-in stage's amlnet.Net, or None for AMLNet alone
     zoom_mirror: bool = False  # also run the zoom stage on the mirrored crop (left-right symmetric robots)
+    flip_calibration: tuple[float, float] | None = None  # (a, b) of zoom.FlipCalibration; None: the raw ranking
 
 
 class IMLParams(NamedTuple):
@@ -64,7 +65,7 @@ def _as_8bit(x):
 def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     """images (B, H, W, 3) uint8 or float in [0, 255]; K (3, 3) or (B, 3, 3) their intrinsics."""
     from rhaml_jax.amlnet import decode
-    from rhaml_jax.zoom import apply_correction, decode_correction, mirror_average
+    from rhaml_jax.zoom import apply_correction, decode_correction, flip_probability, mirror_average
     from rhaml_jax.zoom import box as zoom_box
 
     net = model.amlnet
@@ -93,10 +94,12 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
             norm = 0.5 * (norm + cm.sure)
         xypsi = apply_correction(xypsi[:, :2], t, crop.min_range_m(z.cfg.zoom_length_m))
         # A regressor torn between a heading and its opposite answers with a short direction
-        # vector (their mean is near zero): the shorter, the likelier a flip. A ranking, not a
-        # calibrated probability (BENCHMARKS.md measures how well it ranks flips): 0 for a
-        # unit vector, 0.5 (no information) at length 0.
+        # vector (their mean is near zero): the shorter, the likelier a flip. A ranking (0 for a
+        # unit vector, 0.5 at length 0), made a probability by the zoom checkpoint's calibration
+        # when it has one (`zoom.FlipCalibration`; BENCHMARKS.md measures both).
         flip = 0.5 * (1.0 - norm)
+        if model.flip_calibration is not None:
+            flip = flip_probability(flip, model.flip_calibration)
     return Estimate(xypsi, d["o"], flip, jnp.zeros((B, 2), xypsi.dtype))
 
 
@@ -120,14 +123,17 @@ def check_mirror_symmetric(model, model_path) -> None:
 
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
-             zoom_mirror: bool = False, robot=None, robot_source: str = "the data set") -> tuple[IMLModel, IMLParams]:
+             zoom_mirror: bool = False, robot=None, robot_source: str = "the data set",
+             calibrated: bool = True) -> tuple[IMLModel, IMLParams]:
     """IML from checkpoint folders. Defaults: the shipped `amlnet_cpu` and, with it, its own
     `zoom_cpu` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
     RobotModel, from `robot_source`), networks made for another robot are refused: by the
     fingerprint each checkpoint stores (`robots.check_same_robot`) or, for a zoom stage from
-    before fingerprints, by its robot length (`zoom_length_m`, 15 %)."""
+    before fingerprints, by its robot length (`zoom_length_m`, 15 %). The zoom checkpoint's flip
+    calibration, if it has one (`zoom.write_flip_calibration`), makes `flip_prob` a probability;
+    `calibrated=False` keeps the raw ranking (to fit a calibration)."""
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
-    from rhaml_jax.amlnet.checkpoint import checkpoint_robot
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta, checkpoint_robot
 
     amlnet_dir = amlnet or shipped_checkpoint("amlnet_cpu")
     net, p, s = load_model(amlnet_dir)
@@ -156,5 +162,20 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
                                  f"for a {100 * want:.0f} cm robot ({znet.cfg.name}): train networks for this robot "
                                  "(python -m rhaml_jax.fit), pass --amlnet/--zoom checkpoints made for it, or "
                                  "--allow-other-robot for a deliberate transfer test")
-    return IMLModel(net, znet, zoom_mirror), IMLParams((p, s), zp)
+    cal = None
+    if znet is not None and calibrated:
+        from rhaml_jax.zoom import FlipCalibration
+
+        stored = checkpoint_meta(zoom).get("flip_calibration")
+        if stored is not None:
+            c = FlipCalibration.from_dict(stored, f"zoom-in stage checkpoint {zoom}: flip_calibration")
+            if c.zoom_mirror == zoom_mirror:
+                cal = (c.a, c.b)
+            else:  # the ranking's spread differs with and without mirroring: the raw ranking, said once
+                import warnings
+
+                warnings.warn(f"zoom-in stage checkpoint {zoom}: its flip calibration was fitted "
+                              f"{'with' if c.zoom_mirror else 'without'} --zoom-mirror; flip_prob stays the raw ranking",
+                              stacklevel=2)
+    return IMLModel(net, znet, zoom_mirror, cal), IMLParams((p, s), zp)
 

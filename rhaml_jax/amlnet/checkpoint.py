@@ -100,17 +100,22 @@ def load_model(run_dir: str | Path, step: int | None = None) -> tuple[Net, objec
     return net, state["params"], state["batch_stats"]
 
 
-def checkpoint_robot(run_dir: str | Path) -> dict | None:
-    """The robot fingerprint stored in a checkpoint folder's latest meta (`rhaml_jax.robots
-    .fingerprint`), or None for a checkpoint from before fingerprints."""
+def checkpoint_meta(run_dir: str | Path) -> dict:
+    """A checkpoint folder's latest meta (module docstring)."""
     ck = Checkpoints(run_dir, read_only=True)
     try:
         step = ck.latest_step()
         if step is None:
             raise RhamlError(f"{run_dir}: no checkpoint saved yet")
-        return ck.meta(step).get("robot")
+        return ck.meta(step)
     finally:
         ck.close()
+
+
+def checkpoint_robot(run_dir: str | Path) -> dict | None:
+    """The robot fingerprint stored in a checkpoint folder's latest meta (`rhaml_jax.robots
+    .fingerprint`), or None for a checkpoint from before fingerprints."""
+    return checkpoint_meta(run_dir).get("robot")
 
 
 def export_weights(run_dir: str | Path, out_dir: str | Path, step: int | None = None, extra_meta: dict | None = None) -> Path:

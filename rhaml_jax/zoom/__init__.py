@@ -19,13 +19,18 @@ its nominal size, its offset from the centre is b - b^, and its look depends on 
 
 Host side (NumPy + OpenCV, like the data pipeline): `crop_transform`, `zoom_crop`,
 `correction_targets`, `apply_correction`, `mirror_average` (test-time mirroring), and
-`ZoomSource` (training examples, a pure function of (seed, index)). Pure JAX: the network itself.
+`ZoomSource` (training examples, a pure function of (seed, index)), the flip calibration
+(`FlipCalibration`: its front/back ranking made a probability). Pure JAX: the network itself.
 """
 
 from rhaml_jax.crop import MIN_RANGE_M
 from rhaml_jax.zoom._correction import (ZoomCorrection, apply_correction, box, correction_targets, crop_transform,
                                         decode_correction, mirror_average, zoom_crop)
+from rhaml_jax.zoom._flip_calibration import (FlipCalibration, calibration_metrics, fit_flip_calibration, flip_probability,
+                                              flipped, write_flip_calibration)
 from rhaml_jax.zoom._source import ZoomJitter, ZoomSource, zoom_batch_sources
 
 __all__ = ["ZoomCorrection", "ZoomJitter", "ZoomSource", "apply_correction", "box", "decode_correction",
-           "correction_targets", "crop_transform", "mirror_average", "zoom_batch_sources", "zoom_crop", "MIN_RANGE_M"]
+           "correction_targets", "crop_transform", "mirror_average", "zoom_batch_sources", "zoom_crop", "MIN_RANGE_M",
+           "FlipCalibration", "calibration_metrics", "fit_flip_calibration", "flip_probability", "flipped",
+           "write_flip_calibration"]
