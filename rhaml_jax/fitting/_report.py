@@ -83,6 +83,25 @@ def _plots(out: Path, results: dict) -> list[str]:
     return ["report_trajectories.png", "report_errors.png"]
 
 
+def _flip_lines(out: Path, results: dict) -> list[str]:
+    """How well IML's flip probability predicts its flips on each set (`zoom.calibration_metrics`)."""
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta
+
+    cal = checkpoint_meta(out / "networks" / "zoom").get("flip_calibration") if (out / "networks" / "zoom").is_dir() else None
+    lines = ["", "## Flip probability", "",
+             (f"IML's flip probability: sigmoid({cal['a']:.3f} + {cal['b']:.3f} r) of the zoom stage's front/back ranking r, "
+              f"fitted on {cal['frames']} detected frames ({cal['flips']} flipped) of {cal['source']}."
+              if cal else "IML's flip probability is the zoom stage's raw front/back ranking (not calibrated)."),
+             "", "| data | flips | mean probability | Brier | ECE | ROC area |", "| --- | --- | --- | --- | --- | --- |"]
+    f = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
+    for (name, modules), res in results.items():
+        m = res["metrics"].get("iml_flip")
+        if modules == "iml" and m and m["frames"]:
+            lines.append(f"| {name} | {m['flips']} / {m['frames']} | {f(m['mean_prob'])} | {f(m['brier'])} | {f(m['ece'])} "
+                         f"| {f(m['auroc'])} |")
+    return lines
+
+
 def write_report(out: Path, model, plan: Plan) -> Path:
     """Writes DIR/report.md (and its plots); returns its path."""
     out = Path(out)
@@ -126,6 +145,7 @@ def write_report(out: Path, model, plan: Plan) -> Path:
             continue
         lines.append(f"| {name} | {modules} | {_fmt(r['dx_cm'])} | {_fmt(r['dy_cm'])} | {_fmt(r['dpsi_deg'])} | {r['ate']:.3f} "
                      f"| {r['flips']} / {r['n']} | {r['median_range_ratio']:.3f} | {det} | {fps} |")
+    lines += _flip_lines(out, results)
     lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in _plots(out, results)]
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n")

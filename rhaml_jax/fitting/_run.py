@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -177,6 +178,16 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         for name, export in (("amlnet", export_weights), ("zoom", export_weights), ("refiner", export_refiner)):
             shutil.rmtree(nets / name, ignore_errors=True)  # derived from runs/: a killed export is redone whole
             export(runs / name, nets / name)
+        # IML's flip probability calibrated on the training set's own validation split
+        from rhaml_jax.calibrate_flips import Args as CalArgs, calibrate
+
+        try:
+            calibrate(CalArgs(data / "train", nets / "zoom", amlnet=nets / "amlnet", split="val",
+                              zoom_mirror=bool(_mirror_flag(model)), batch=plan.zoom_batch))
+        except RhamlError as e:  # a test-size run: too few detected frames; the raw ranking stays
+            if plan.size != "tiny":
+                raise
+            print(f"rhaml_jax.fit: flip probability not calibrated: {e}", file=sys.stderr)
 
     def scenarios_stage():
         cam = _camera(plan.eval_width, plan.eval_height)
