@@ -106,6 +106,12 @@ def test_a_stored_calibration_is_what_iml_applies(nets):
     write_flip_calibration(zoom, cal)
     assert checkpoint_meta(zoom)["flip_calibration"] == cal.to_dict()
     assert not (nets / "zoom_cal.uncalibrated").exists() and not (nets / "zoom_cal.calibrating").exists()
+    # killed between its two renames: the next call restores the folder and finishes
+    (nets / "zoom_cal").rename(nets / "zoom_cal.uncalibrated")
+    (nets / "zoom_cal.calibrating").mkdir()
+    write_flip_calibration(zoom, cal)
+    assert checkpoint_meta(zoom)["flip_calibration"] == cal.to_dict()
+    assert not (nets / "zoom_cal.uncalibrated").exists() and not (nets / "zoom_cal.calibrating").exists()
     frames = read_bop(nets / "set")
     images = jnp.asarray(np.stack([load_rgb(f.rgb) for f in frames]))
     K = jnp.asarray(frames[0].K)

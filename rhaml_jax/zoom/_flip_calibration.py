@@ -91,15 +91,15 @@ def write_flip_calibration(zoom_dir: str | Path, cal: FlipCalibration) -> Path:
     from rhaml_jax.amlnet.checkpoint import checkpoint_meta, export_weights
 
     zoom_dir = Path(zoom_dir)
+    tmp, old = zoom_dir.with_name(zoom_dir.name + ".calibrating"), zoom_dir.with_name(zoom_dir.name + ".uncalibrated")
+    if not zoom_dir.exists() and old.exists():  # a call interrupted between its two renames
+        old.rename(zoom_dir)
+    for p in (tmp, old):  # leftovers of an interrupted call
+        if p.exists():
+            shutil.rmtree(p)
     meta = checkpoint_meta(zoom_dir)
     if meta.get("model_config", {}).get("task") != "zoom":
         raise RhamlError(f"{zoom_dir}: not a zoom-in stage checkpoint (config {meta.get('model_config', {}).get('name')!r})")
-    tmp, old = zoom_dir.with_name(zoom_dir.name + ".calibrating"), zoom_dir.with_name(zoom_dir.name + ".uncalibrated")
-    for p in (tmp, old):  # leftovers of an interrupted call
-        if p.exists() and zoom_dir.exists():
-            shutil.rmtree(p)
-    if not zoom_dir.exists() and old.exists():  # interrupted between the two renames
-        old.rename(zoom_dir)
     export_weights(zoom_dir, tmp, extra_meta={"exported_from": meta.get("exported_from", str(zoom_dir)),
                                               "flip_calibration": cal.to_dict()})
     zoom_dir.rename(old)
