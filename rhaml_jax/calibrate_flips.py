@@ -49,7 +49,8 @@ def calibrate(args: Args) -> dict:
     """Fits (and unless --dry-run stores) the calibration; returns it with the metrics of the
     raw ranking and of the calibrated probability on the fitted frames."""
     from rhaml_jax import evaluate
-    from rhaml_jax.zoom import calibration_metrics, fit_flip_calibration, flip_probability, flipped, write_flip_calibration
+    from rhaml_jax.metrics import flipped
+    from rhaml_jax.zoom import calibration_metrics, fit_flip_calibration, flip_probability, write_flip_calibration
 
     if not (args.zoom / "checkpoints").is_dir():
         raise RhamlError(f"--zoom {args.zoom}: not a checkpoint folder (no checkpoints/ inside)")

@@ -154,7 +154,8 @@ def run(args: Args) -> dict:
           "scenes": len(runs)}
     rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
     if model.iml.zoom is not None:  # how well IML's flip_prob predicts its flips (zoom.calibration_metrics)
-        from rhaml_jax.zoom import calibration_metrics, flipped
+        from rhaml_jax.metrics import flipped
+        from rhaml_jax.zoom import calibration_metrics
 
         seen = [r for r in rows if r["observed"] and r["detected"]]
         m["iml_flip"] = calibration_metrics([r["iml_flip_prob"] for r in seen],

@@ -11,9 +11,16 @@ import numpy as np
 
 from rhaml_jax.frames import se3_from_xypsi, wrap_angle
 
-__all__ = ["DETECTION_THRESHOLD", "abs_errors", "ate", "detection_counts", "frame_summary", "summarize"]
+__all__ = ["DETECTION_THRESHOLD", "FLIP_DEG", "abs_errors", "ate", "detection_counts", "flipped", "frame_summary", "summarize"]
 
 DETECTION_THRESHOLD = 0.5  # o >= this: the robot is called in view (everywhere: evaluate, training metrics)
+FLIP_DEG = 90.0  # a heading error beyond this is a front/back flip (every table and calibration)
+
+
+def flipped(est_psi, gt_psi) -> np.ndarray:
+    """(N,) bool: the estimate's heading is off by more than FLIP_DEG."""
+    d = np.angle(np.exp(1j * (np.asarray(est_psi, np.float64) - np.asarray(gt_psi, np.float64))))
+    return np.abs(d) > np.deg2rad(FLIP_DEG)
 
 
 def detection_counts(o, observed) -> dict:
@@ -77,6 +84,6 @@ def frame_summary(frames: list[dict], detected_only: bool = True) -> dict:
     for k, name in enumerate(("dx_cm", "dy_cm", "dpsi_deg")):
         row[name] = [float(e[:, k].mean()), float(e[:, k].std()), float(np.median(e[:, k]))]
     row["ate"] = float(summarize(est, gt)["ate"])
-    row["flips"] = int((e[:, 2] > 90).sum())
+    row["flips"] = int(flipped(est[:, 2], gt[:, 2]).sum())
     row["median_range_ratio"] = float(np.median(np.hypot(est[:, 0], est[:, 1]) / np.hypot(gt[:, 0], gt[:, 1])))
     return row

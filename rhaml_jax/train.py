@@ -49,7 +49,7 @@ class Args:
     zoom_length_m: float | None = None
     """zoom: the robot length the crop is sized to (default: the config's, the built-in robot's 0.455 m)"""
     init: Path | None = None
-    """amlnet / zoom: start from the weights of this checkpoint folder (e.g. rhaml_jax/checkpoints/amlnet_cpu) instead of a random initialisation: fine-tuning"""
+    """start from the weights of this checkpoint folder of the same network and config (e.g. rhaml_jax/checkpoints/amlnet_cpu, or a refiner run) instead of a random initialisation: fine-tuning"""
     toy_data: bool = False
     """TEST ONLY: coloured rectangles instead of robot images (exercises the trainer; the model learns nothing about robots)"""
     progress: bool = True
@@ -111,23 +111,30 @@ def train_refiner(args: Args) -> dict:
         raise RhamlError(f"--steps {tc.steps} / --batch {tc.batch}: must be positive")
     model = load_bop_model(args.data)
     if args.stage == "refiner":
-        from rhaml_jax.refine.net import get_refiner_config
+        from rhaml_jax.refine import net as N
         from rhaml_jax.refine.train import RefinerSource as Source, refiner_task
 
-        cfg = get_refiner_config(args.config)
+        cfg, stored = N.get_refiner_config(args.config), (N.config_from_dict, N.init_params)
         make_task = lambda val: refiner_task(cfg, tc, model, model, val)  # noqa: E731
     elif args.stage == "scorer":
-        from rhaml_jax.refine.scorer import ScorerSource as Source, get_scorer_config, scorer_task
+        from rhaml_jax.refine import scorer as S
 
-        cfg = get_scorer_config(args.config)
-        make_task = lambda val: scorer_task(cfg, tc, model, val)  # noqa: E731
+        Source, cfg, stored = S.ScorerSource, S.get_scorer_config(args.config), (S.config_from_dict, S.init_params)
+        make_task = lambda val: S.scorer_task(cfg, tc, model, val)  # noqa: E731
     else:
-        from rhaml_jax.refine.segmenter import SegmenterSource as Source, get_segmenter_config, segmenter_task
+        from rhaml_jax.refine import segmenter as G
 
-        cfg = get_segmenter_config(args.config)
-        make_task = lambda val: segmenter_task(cfg, tc, model, val)  # noqa: E731
+        Source, cfg, stored = G.SegmenterSource, G.get_segmenter_config(args.config), (G.config_from_dict, G.init_params)
+        make_task = lambda val: G.segmenter_task(cfg, tc, model, val)  # noqa: E731
     source = Source(args.data, "train", cfg, tc.batch, seed=tc.seed)
     task, shardings = make_task(Source(args.data, "val", cfg, tc.batch, seed=tc.seed + 10_000))
+    if args.init is not None:  # the starting point; a resumed run then continues from its own checkpoint
+        from rhaml_jax.refine._checkpoint import load_params
+
+        params, init_cfg = load_params(args.init, args.stage, model, *stored)
+        if init_cfg != cfg:
+            raise RhamlError(f"--init {args.init}: holds a {init_cfg.name!r} {args.stage}, not --config {cfg.name!r}")
+        task = dataclasses.replace(task, params=params, meta={**task.meta, "initialised_from": str(args.init)})
     res = fit(task, tc, args.out, source, shardings=shardings, resume=args.resume,
               data_label=f"{args.stage} crops of BOP {args.data}", progress=args.progress)
     print(f"step {res['step']}: loss {res['loss']:.5f}" + "".join(f", {k} {v:.4g}" for k, v in res["val"].items()))
@@ -138,8 +145,6 @@ def main(argv: list[str] | None = None) -> dict:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
     tune_allocator()  # before JAX starts its threads; see rhaml_jax.allocator
     if args.stage in ("refiner", "segmenter", "scorer"):
-        if args.init is not None:
-            raise RhamlError(f"--init: fine-tuning is for --stage amlnet and zoom; the {args.stage} starts from its own initialisation")
         return train_refiner(args)
     from rhaml_jax.amlnet.config import get_config
     from rhaml_jax.amlnet.trainer import train_amlnet

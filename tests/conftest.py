@@ -1,4 +1,5 @@
-"""Shared test fixtures: where ../shared/data is, and a skip when it is absent."""
+"""Shared test fixtures: where ../shared/data is (and a skip when it is absent), a tiny BOP set,
+and random-weight network checkpoints."""
 
 from __future__ import annotations
 
@@ -38,3 +39,22 @@ def train_tiny(stage: str, config: str, data, out) -> tuple:
             "--steps", "4", "--batch", "2", "--log-every", "2", "--val-every", "4", "--val-batches", "1",
             "--ckpt-every", "2", "--no-progress"]
     return out, main(args), args
+
+
+def random_checkpoint(folder: Path, config, seed: int = 5, **meta) -> Path:
+    """A weights-only checkpoint of an AMLNet or zoom-stage config (a name or a config object) at
+    random weights, with `meta` added to its meta: what `evaluate --amlnet/--zoom` and the
+    calibration read, without training."""
+    import jax
+
+    from rhaml_jax.amlnet import build, get_config
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+    from rhaml_jax.amlnet.config import config_to_dict
+
+    cfg = get_config(config) if isinstance(config, str) else config
+    net = build(cfg, jax.random.key(seed))
+    ck = Checkpoints(folder, keep=1)
+    ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
+            {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0, **meta})
+    ck.close()
+    return folder

@@ -5,31 +5,24 @@ from __future__ import annotations
 
 import json
 
-import jax
 import numpy as np
 import pytest
 
 from rhaml_jax import metrics
-from rhaml_jax.amlnet import build, decode, get_config, load_model
-from rhaml_jax.amlnet.checkpoint import Checkpoints
-from rhaml_jax.amlnet.config import config_to_dict
+from rhaml_jax.amlnet import decode, get_config, load_model
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.data import load_rgb, network_image, read_bop
 from rhaml_jax.data import write_training_set
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.evaluate import main
+from tests.conftest import random_checkpoint
 
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("eval")
     write_training_set(root / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=10, negatives=3, workers=1)
-    cfg = get_config("micro")
-    net = build(cfg, jax.random.key(5))
-    ck = Checkpoints(root / "ckpt", keep=1)
-    ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
-            {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
-    ck.close()
+    random_checkpoint(root / "ckpt", "micro")
     return root
 
 
@@ -88,12 +81,7 @@ def test_networks_made_for_another_robot(setup, tmp_path):
     """A zoom stage sized for a 90 cm robot on the 46 cm Pioneer's data set: refused, naming both."""
     from dataclasses import replace
 
-    cfg = replace(get_config("tiny_zoom"), zoom_length_m=0.9)
-    net = build(cfg, jax.random.key(1))
-    ck = Checkpoints(tmp_path / "zoom", keep=1)
-    ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
-            {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
-    ck.close()
+    random_checkpoint(tmp_path / "zoom", replace(get_config("tiny_zoom"), zoom_length_m=0.9), seed=1)
     with pytest.raises(RhamlError, match=r"obj_000001.ply: this robot is 4\d cm long, but the networks "
                                          r"were made for a 90 cm robot"):
         main(["--data", str(setup / "set"), "--amlnet", str(setup / "ckpt"), "--zoom", str(tmp_path / "zoom"),
@@ -106,11 +94,7 @@ def test_fingerprint_of_another_robot_is_refused_unless_allowed(setup, tmp_path)
     from rhaml_jax.robots import RobotFingerprint
 
     other = RobotFingerprint("turtlebot3_burger", (0.138, 0.178, 0.191), 0.295, "8866043173b6941b")
-    net, params, stats = load_model(setup / "ckpt")
-    ck = Checkpoints(tmp_path / "other", keep=1)
-    ck.save(0, {"params": params, "batch_stats": stats},
-            {"model_config": config_to_dict(net.cfg), "weights_only": True, "step": 0, "robot": other.to_dict()})
-    ck.close()
+    random_checkpoint(tmp_path / "other", "micro", robot=other.to_dict())
     args = ["--data", str(setup / "set"), "--amlnet", str(tmp_path / "other"), "--modules", "iml"]
     with pytest.raises(RhamlError, match=r"AMLNet checkpoint .* was made for robot 'turtlebot3_burger' \(13.8 x 17.8 x "
                                          r"19.1 cm.*but .*obj_000001.ply is robot 'obj_000001' \(45.5 x 38.1"):

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import json
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.zoom import (FlipCalibration, calibration_metrics, fit_flip_calibration, flip_probability, flipped,
-                            write_flip_calibration)
+from rhaml_jax.metrics import flipped
+from tests.conftest import random_checkpoint
+from rhaml_jax.zoom import FlipCalibration, calibration_metrics, fit_flip_calibration, flip_probability, write_flip_calibration
 
 
 def _platt_objective(w, r, t):
@@ -75,20 +75,13 @@ def test_bad_input_is_named():
 @pytest.fixture(scope="module")
 def nets(tmp_path_factory):
     """A tiny BOP set and random-weight micro AMLNet + tiny_zoom checkpoints."""
-    from rhaml_jax.amlnet import build, get_config
-    from rhaml_jax.amlnet.checkpoint import Checkpoints
-    from rhaml_jax.amlnet.config import config_to_dict
     from rhaml_jax.camera import DEFAULT_CAMERA
     from rhaml_jax.data import write_training_set
 
     root = tmp_path_factory.mktemp("flipcal")
     write_training_set(root / "set", "pioneer3dx", DEFAULT_CAMERA.resized(160, 120), seed=3, num=6, negatives=1, workers=1)
-    for name, cfg in (("amlnet", get_config("micro")), ("zoom", get_config("tiny_zoom"))):
-        net = build(cfg, jax.random.key(5))
-        ck = Checkpoints(root / name, keep=1)
-        ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
-                {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
-        ck.close()
+    random_checkpoint(root / "amlnet", "micro")
+    random_checkpoint(root / "zoom", "tiny_zoom")
     return root
 
 

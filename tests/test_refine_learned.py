@@ -46,6 +46,30 @@ def test_cli_trains_resumes_and_logs(run):
         main(args[:-1] + ["--lr", "0.5", "--resume", "--no-progress"])
 
 
+def test_init_fine_tunes_from_a_run(run, tmp_path):
+    """--init: a refiner run starts at another run's weights (at learning rate 0 it ends there),
+    records where they came from, and refuses a checkpoint of another config or network."""
+    from rhaml_jax.amlnet.checkpoint import Checkpoints
+    from rhaml_jax.train import main
+
+    out, res, args = run
+    a = dict(zip(args[::2], args[1::2]))
+    tuned = main(["--stage", "refiner", "--config", "refiner_micro", "--data", a["--data"], "--out", str(tmp_path / "ft"),
+                  "--init", str(out), "--steps", "2", "--batch", "2", "--lr", "0", "--warmup", "0", "--val-every", "2",
+                  "--val-batches", "1", "--no-progress"])
+    for x, y in zip(jax.tree.leaves(tuned["params"]), jax.tree.leaves(res["params"])):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    ck = Checkpoints(tmp_path / "ft", read_only=True)
+    assert ck.meta(ck.latest_step())["initialised_from"] == str(out)
+    ck.close()
+    with pytest.raises(RhamlError, match=r"--init .*holds a 'refiner_micro' refiner, not --config 'refiner_cpu'"):
+        main(["--stage", "refiner", "--config", "refiner_cpu", "--data", a["--data"], "--out", str(tmp_path / "x"),
+              "--init", str(out), "--no-progress"])
+    with pytest.raises(RhamlError, match=r"not a segmenter checkpoint"):
+        main(["--stage", "segmenter", "--config", "segmenter_micro", "--data", a["--data"], "--out", str(tmp_path / "y"),
+              "--init", str(out), "--no-progress"])
+
+
 def test_checkpoint_refuses_another_robot(run, bop_set):
     out, _, _ = run
     model = load_bop_model(bop_set)

@@ -6,21 +6,19 @@ from __future__ import annotations
 import dataclasses
 import json
 
-import jax
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rhaml_jax.amlnet import build, decode, get_config, load_model
-from rhaml_jax.amlnet.checkpoint import Checkpoints
-from rhaml_jax.amlnet.config import config_to_dict
+from rhaml_jax.amlnet import decode, get_config, load_model
 from rhaml_jax.zoom import ZoomSource, apply_correction, correction_targets, mirror_average, zoom_crop
 from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
 from rhaml_jax.data import load_rgb, network_image, read_bop
 from rhaml_jax.data import write_training_set
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.evaluate import main
+from tests.conftest import random_checkpoint
 
 CFG = get_config("zoom_cpu")
 
@@ -151,12 +149,8 @@ def test_train_cli_runs_the_zoom_stage(bop_set, tmp_path):
 
 
 def test_evaluate_composes_amlnet_and_zoom(bop_set, tmp_path):
-    for name, cfg in (("amlnet", get_config("micro")), ("zoom", get_config("tiny_zoom"))):
-        net = build(cfg, jax.random.key(5))
-        ck = Checkpoints(tmp_path / name, keep=1)
-        ck.save(0, {"params": net.params, "batch_stats": net.batch_stats},
-                {"model_config": config_to_dict(cfg), "weights_only": True, "step": 0})
-        ck.close()
+    random_checkpoint(tmp_path / "amlnet", "micro")
+    random_checkpoint(tmp_path / "zoom", "tiny_zoom")
     out = tmp_path / "eval.json"
     main(["--data", str(bop_set), "--amlnet", str(tmp_path / "amlnet"), "--zoom", str(tmp_path / "zoom"),
           "--json", str(out), "--batch", "4"])

@@ -27,10 +27,10 @@ from rhaml_jax.crop import MIN_RANGE_M
 from rhaml_jax.zoom._correction import (ZoomCorrection, apply_correction, box, correction_targets, crop_transform,
                                         decode_correction, mirror_average, zoom_crop)
 from rhaml_jax.zoom._flip_calibration import (FlipCalibration, calibration_metrics, fit_flip_calibration, flip_probability,
-                                              flipped, write_flip_calibration)
+                                              write_flip_calibration)
 from rhaml_jax.zoom._source import ZoomJitter, ZoomSource, zoom_batch_sources
 
 __all__ = ["ZoomCorrection", "ZoomJitter", "ZoomSource", "apply_correction", "box", "decode_correction",
            "correction_targets", "crop_transform", "mirror_average", "zoom_batch_sources", "zoom_crop", "MIN_RANGE_M",
-           "FlipCalibration", "calibration_metrics", "fit_flip_calibration", "flip_probability", "flipped",
+           "FlipCalibration", "calibration_metrics", "fit_flip_calibration", "flip_probability",
            "write_flip_calibration"]

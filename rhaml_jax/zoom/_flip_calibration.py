@@ -24,8 +24,6 @@ import numpy as np
 
 from rhaml_jax.errors import RhamlError
 
-FLIP_DEG = 90.0  # a heading error beyond this is a flip (the fit reports use the same)
-
 
 class FlipCalibration(NamedTuple):
     """P(flip) = sigmoid(a + b * ranking), and what it was fitted on."""
@@ -49,12 +47,6 @@ class FlipCalibration(NamedTuple):
         if not (np.isfinite(cal.a) and np.isfinite(cal.b)):
             raise RhamlError(f"{where}: a = {cal.a}, b = {cal.b} must be finite")
         return cal
-
-
-def flipped(est_psi, gt_psi) -> np.ndarray:
-    """(N,) bool: the estimate's heading is off by more than FLIP_DEG."""
-    d = np.angle(np.exp(1j * (np.asarray(est_psi, np.float64) - np.asarray(gt_psi, np.float64))))
-    return np.abs(d) > np.deg2rad(FLIP_DEG)
 
 
 def fit_flip_calibration(ranking, is_flipped, zoom_mirror: bool, source: str = "", iterations: int = 50) -> FlipCalibration:
