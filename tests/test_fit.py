@@ -47,6 +47,11 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     # from scratch (tiny plans are): the zoom stage's curriculum, v1 images first, then v3 and v1 together
     assert (out / "runs" / "zoom_v1" / "checkpoints").is_dir()
     assert {p.resolve().parents[1].name for p in (out / "data" / "train_mix" / "train").iterdir()} == {"train", "train_v1"}
+    # the refiner's: v1 images first, then v3 ones from that run's weights
+    assert (out / "runs" / "refiner_v1" / "checkpoints").is_dir() and (out / "data" / "refine_v1" / "train").is_dir()
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta
+
+    assert checkpoint_meta(out / "runs" / "refiner").get("initialised_from") == str(out / "runs" / "refiner_v1")
     report = (out / "report.md").read_text()
     assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
     assert (out / "report_trajectories.png").stat().st_size > 1000
@@ -124,13 +129,14 @@ def test_budget_rule():
     # the evaluation's 16 compilations and the flip calibration's (32 s each) come off the top;
     # the shares split the rest
     F = 17 * 32.0
-    q = make_plan(45)  # 2700 s - F: AMLNet 45 % at 0.9 s per step, data 15 % at 0.024 s per image (604 faces)
-    assert q.images + q.negatives == int(0.15 * (2700 - F) / 0.024 / 1.1)
+    # data 15 %: 0.024 s per image and its tenth for the refiner, 0.045 s per v1 image of the refiner's (a twentieth)
+    q = make_plan(45)  # 2700 s - F: AMLNet 45 % at 0.9 s per step, data 15 % (604 faces)
+    assert q.images + q.negatives == int(0.15 * (2700 - F) / (0.024 * 1.1 + 0.045 / 20))
     # no stage capped: only the rounding is left over for the trainings
     assert abs(q.amlnet_steps - 0.45 * (2700 - F) / 0.9) <= 2 and abs(q.zoom_steps - 0.12 * (2700 - F) / 0.1) <= 2
     # a 91,104-face mesh renders at 10 images/s and evaluates at 1.17 s per frame: fewer of both
     t = make_plan(45, faces=91_104, scale=0.39)
-    assert t.images + t.negatives == int(0.15 * (2700 - F) / 0.1 / 1.1) and t.frames == int(0.18 * (2700 - F) / 1.17 / 6)
+    assert t.images + t.negatives == int(0.15 * (2700 - F) / (0.1 * 1.1 + 0.4 / 20)) and t.frames == int(0.18 * (2700 - F) / 1.17 / 6)
     assert abs(t.amlnet_steps - q.amlnet_steps) <= 1 and t.scale == 0.39
     # the refiner renders too: 0.13 s per step at 604 faces, 0.5 s at 91,104
     assert (q.refiner_steps, t.refiner_steps) == (int(0.1 * (2700 - F) / 0.13), int(0.1 * (2700 - F) / 0.5))
@@ -139,11 +145,11 @@ def test_budget_rule():
     S = 80 * 60 - F
     r = make_plan(80)
     assert r.images + r.negatives == 20000 and r.refiner_steps == 3000 and r.frames < 500
-    spare = S - 20000 * 0.024 * 1.1 - 0.45 * S - 0.12 * S - 3000 * 0.13 - 6 * r.frames * 0.32
+    spare = S - 20000 * (0.024 * 1.1 + 0.045 / 20) - 0.45 * S - 0.12 * S - 3000 * 0.13 - 6 * r.frames * 0.32
     assert spare > 100
     assert abs(r.amlnet_steps - (0.45 * S + spare * 45 / 57) / 0.9) <= 2
     assert abs(r.zoom_steps - (0.12 * S + spare * 12 / 57) / 0.1) <= 2
-    planned = (r.images + r.negatives) * 0.024 * 1.1 + r.amlnet_steps * 0.9 + r.zoom_steps * 0.1 + 3000 * 0.13 + 6 * r.frames * 0.32
+    planned = (r.images + r.negatives) * (0.024 * 1.1 + 0.045 / 20) + r.amlnet_steps * 0.9 + r.zoom_steps * 0.1 + 3000 * 0.13 + 6 * r.frames * 0.32
     assert 0.99 * S <= planned <= S
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
@@ -163,6 +169,9 @@ def test_budget_rule():
     long = make_plan(131, warm_start=False)
     assert (long.zoom_steps, long.zoom_v1_steps) == (17_000, 12_000) and make_plan(131).zoom_steps == 10_000
     assert (make_plan(75).v1_images, make_plan(75).zoom_v1_steps) == (0, 0)  # fine-tuning needs none
+    # the refiner always starts from random weights: its first 2/3 on v1 images, a twentieth as many as v3 ones
+    for q in (scratch, long, make_plan(75)):
+        assert q.refiner_v1_steps == round(q.refiner_steps * 2 / 3) and q.refine_v1_images == (q.images + q.negatives) // 20
     assert not make_plan(5, "tiny").warm_start  # test-size networks have no shipped weights
     assert json.loads(json.dumps(p.__dict__))["eval_sets"] == list(p.eval_sets)
 

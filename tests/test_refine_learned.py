@@ -49,7 +49,7 @@ def test_cli_trains_resumes_and_logs(run):
 def test_init_fine_tunes_from_a_run(run, tmp_path):
     """--init: a refiner run starts at another run's weights (at learning rate 0 it ends there),
     records where they came from, and refuses a checkpoint of another config or network."""
-    from rhaml_jax.amlnet.checkpoint import Checkpoints
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta
     from rhaml_jax.train import main
 
     out, res, args = run
@@ -59,9 +59,7 @@ def test_init_fine_tunes_from_a_run(run, tmp_path):
                   "--val-batches", "1", "--no-progress"])
     for x, y in zip(jax.tree.leaves(tuned["params"]), jax.tree.leaves(res["params"])):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    ck = Checkpoints(tmp_path / "ft", read_only=True)
-    assert ck.meta(ck.latest_step())["initialised_from"] == str(out)
-    ck.close()
+    assert checkpoint_meta(tmp_path / "ft")["initialised_from"] == str(out)
     with pytest.raises(RhamlError, match=r"--init .*holds a 'refiner_micro' refiner, not --config 'refiner_cpu'"):
         main(["--stage", "refiner", "--config", "refiner_cpu", "--data", a["--data"], "--out", str(tmp_path / "x"),
               "--init", str(out), "--no-progress"])

@@ -51,6 +51,13 @@ it ran (our circle's flips 41 of 434 after 4,000 steps, 0 after 12,000), and 5,0
 mix kept it (1 of 434) while the v3 validation split's flips fell (211 -> 166 of 492; BENCHMARKS.md,
 "A curriculum for the heading"). Size "tiny" (the tests) ignores the rates: a few images and steps of
 the test-size configs, evaluated on the circle and the held-out circle only.
+
+The refiner always starts from random weights, and likewise learns first on plain-look images
+(a twentieth as many as the training images, at 640 x 480; 0.045 s each at 604 faces), for 2/3
+of its steps, then on the v3 ones from those weights: chosen on the validation splits (eq. 8's
+point-matching loss after four test-time iterations, v3 / v1): v3 alone 0.339 / 0.298, v1 then
+v3 0.310 / 0.198, v1 then v3 + v1 0.346 / 0.169, v1 alone 0.628 / 0.170 (BENCHMARKS.md, "A
+curriculum for the refiner").
 """
 
 from __future__ import annotations
@@ -67,6 +74,8 @@ RATES = {"amlnet_step_s": 0.9, "zoom_step_s": 0.1}
 MEASURED_FACES = (604, 91_104)
 IMAGE_S = (0.024, 1 / 10)
 V1_IMAGE_S = (0.009, 1 / 10)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
+V1_REFINE_IMAGE_S = (0.045, 0.4)  # v1 at 640 x 480 (measured 0.09 s with one process beside a training); 4x the
+#                                   320 x 256 rate at 91,104 faces
 EVAL_FRAME_S = (0.32, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
@@ -76,6 +85,7 @@ EVAL_COMPILE_S = 32.0
 runs: about 510 s over their 16 runs), whatever the frame count"""
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)
 ZOOM_V1_FRACTION = 12 / 17  # from scratch: the zoom stage's steps spent on v1 images before the v3 ones
+REFINER_V1_FRACTION = 2 / 3  # the refiner's steps spent on v1 images before the v3 ones
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
 # from random weights AMLNet needs far more: its validation detection accuracy was 0.14 after 901
 # steps, 0.43 after 1,100 and 0.53 after 1,900 of 2,970 (BENCHMARKS.md, "The Pioneer from nothing")
@@ -121,6 +131,10 @@ class Plan:
     """from scratch, the curriculum's plain-look (v1) training images (0 when warm-started)"""
     zoom_v1_steps: int
     """from scratch, the zoom stage's first steps, on the v1 images (of `zoom_steps`; 0 when warm-started)"""
+    refine_v1_images: int
+    """the refiner's plain-look (v1) training images, at the evaluation size"""
+    refiner_v1_steps: int
+    """the refiner's first steps, on those images (of `refiner_steps`; it always starts from random weights)"""
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "plan") -> "Plan":
@@ -146,7 +160,7 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
         raise RhamlError(f"--budget-minutes {budget_minutes}: must be positive")
     if size == "tiny":  # test-size networks have no shipped weights to start from
         return Plan("tiny", "tiny", "tiny_zoom", "refiner_micro", 160, 24, 6, 12, 4, 4, 4, 8, 8, 8, 8, 160,
-                    ("circle", "heldout/circle"), budget_minutes, scale, False, 12, 2)
+                    ("circle", "heldout/circle"), budget_minutes, scale, False, 12, 2, 6, 2)
     if size != "cpu":
         raise RhamlError(f"--size {size!r}: expected cpu or tiny")
     counts = _counts(budget_minutes * 60.0, faces, not warm_start)
@@ -162,7 +176,8 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
     return Plan("cpu", "cpu_heat", "zoom_cpu_luma", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
                 counts["amlnet_steps"], counts["zoom_steps"], counts["refiner_steps"], 32, 32, 16, counts["frames"], 640,
                 EVAL_SETS, budget_minutes, scale, warm_start, 0 if warm_start else int(images * V1_FRACTION),
-                0 if warm_start else round(counts["zoom_steps"] * ZOOM_V1_FRACTION))
+                0 if warm_start else round(counts["zoom_steps"] * ZOOM_V1_FRACTION), max(20, images // 20),
+                round(counts["refiner_steps"] * REFINER_V1_FRACTION))
 
 
 def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
@@ -171,11 +186,13 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     s = budget_s - eval_compile_s()  # what the shares split
     # the line through the two points, no cheaper than the smaller mesh
     grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
-    image_s, v1_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, V1_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
+    image_s, v1_s, v1_refine_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (
+        IMAGE_S, V1_IMAGE_S, V1_REFINE_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
     # seconds per unit of each count: the refiner's images (a tenth as many) at the training
-    # images' rate, and the curriculum's v1 images; two scenarios and four held-out parts of
-    # about the same size, each evaluated
-    unit = {"images": image_s * 1.1 + (V1_FRACTION * v1_s if curriculum else 0.0), "amlnet_steps": RATES["amlnet_step_s"], "zoom_steps": RATES["zoom_step_s"],
+    # images' rate and its v1 ones (a twentieth), and the curriculum's v1 images; two scenarios
+    # and four held-out parts of about the same size, each evaluated
+    unit = {"images": image_s * 1.1 + v1_refine_s / 20 + (V1_FRACTION * v1_s if curriculum else 0.0),
+            "amlnet_steps": RATES["amlnet_step_s"], "zoom_steps": RATES["zoom_step_s"],
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}

@@ -6,7 +6,8 @@ DIR/
   fit.json            robot fingerprint, plan, finished stages and their seconds
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
   data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
-  runs/{amlnet,zoom_v1,zoom,refiner}                   training runs (checkpoints, metrics.jsonl, metrics.png)
+  data/refine_v1      the refiner's plain-look (v1) images (BOP, 640 x 480)
+  runs/{amlnet,zoom_v1,zoom,refiner_v1,refiner}        training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
   report.md, report_*.png                              the report
@@ -28,7 +29,7 @@ from rhaml_jax.fitting._plan import Plan, eval_modules
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
 REPAINT_PROB = 0.5
-STAGES = ("data", "amlnet", "zoom_v1", "zoom", "refiner", "export", "scenarios", "evaluate", "report")
+STAGES = ("data", "amlnet", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 
 
@@ -126,9 +127,12 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
                            workers, cfg=v3)
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
                            plan.refine_images, 0, workers, cfg=v3)
-        if plan.v1_images:  # the curriculum's plain look (zoom_v1_stage)
+        v1 = SynthConfig(appearance=None).scaled(plan.scale)  # the curriculums' plain look
+        if plan.v1_images:  # zoom_v1_stage's
             write_training_set(data / "train_v1", robot_spec, _camera(plan.width, plan.height), seed + 2, plan.v1_images, 0,
-                               workers, cfg=SynthConfig(appearance=None).scaled(plan.scale))
+                               workers, cfg=v1)
+        write_training_set(data / "refine_v1", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 3,
+                           plan.refine_v1_images, 0, workers, cfg=v1)  # refiner_v1_stage's
 
     def train(stage: str, config: str, folder: str, steps: int, batch: int, val_times: int, val_batches: int, *extra,
               stage_dir: str | None = None):
@@ -167,7 +171,14 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
             folder, start = "train", warm(plan.zoom_config)
         train("zoom", plan.zoom_config, folder, plan.zoom_steps - plan.zoom_v1_steps, plan.zoom_batch, 8, 8, *zoom_args, *start)
 
-    refiner_stage = lambda: train("refiner", plan.refiner_config, "refine", plan.refiner_steps, plan.refiner_batch, 4, 4)  # noqa: E731
+    def refiner_v1_stage():
+        """The refiner first learns on plain-look images: from random weights on v3 images alone it
+        hardly learns (BENCHMARKS.md, "A curriculum for the refiner")."""
+        train("refiner", plan.refiner_config, "refine_v1", plan.refiner_v1_steps, plan.refiner_batch, 4, 4, stage_dir="refiner_v1")
+
+    def refiner_stage():
+        train("refiner", plan.refiner_config, "refine", plan.refiner_steps - plan.refiner_v1_steps, plan.refiner_batch, 4, 4,
+              *init_from(runs / "refiner_v1"))
 
     def export_stage():
         from rhaml_jax.amlnet import export_weights
@@ -214,7 +225,8 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
         write_report(out, model, plan)
 
-    return {"data": data_stage, "amlnet": amlnet_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage, "refiner": refiner_stage,
+    return {"data": data_stage, "amlnet": amlnet_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage,
+            "refiner_v1": refiner_v1_stage, "refiner": refiner_stage,
             "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
 
 
