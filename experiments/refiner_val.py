@@ -4,7 +4,7 @@
 
 The examples are the training's own draws on that split (`refine.train.RefinerSource`: the
 initial pose as the paper's noise or as our IML errs, half each, a pure function of (seed,
-index); never near the truth, whatever the refiner's `near_prob`), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in
+index)), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in
 the camera frame of the frame's true camera (so the frames' varied camera heights do not enter
 the error). Prints, after each learned iteration: the point-matching loss (eq. 8, L1, m), the
 mean |dx|, |dy| of the planar error in the camera's ground axes (depth, lateral; cm), the mean
@@ -62,7 +62,7 @@ def run(a: Args) -> list[dict]:
     model = load_bop_model(a.data)
     ref = load_refiner(a.refiner, model)
     rc = ref.cfg
-    src = RefinerSource(a.data, a.split, dataclasses.replace(rc, near_prob=0.0), 1, seed=a.seed)  # one draw for every refiner
+    src = RefinerSource(a.data, a.split, rc, 1, seed=a.seed)
     mesh = render.as_mesh(model)
     corners = jnp.asarray(_corners(model.vertices), jnp.float32)
     points = model.sample_surface(512, seed=1)

@@ -169,20 +169,3 @@ def test_the_papers_position_noise_scales_with_the_robot(bop_set):
     assert abs(xy1 - 0.15) < 0.01 and abs(xy39 - 0.15 * 0.39) < 0.004
     assert abs(psi1 - np.deg2rad(20)) < 0.03 and abs(psi39 - psi1) < 1e-12
 
-
-def test_near_truth_starts_are_a_fraction_of_the_draws():
-    """near_prob: that fraction of the starts lies within the paper's noise times 0.25 (in
-    distribution: |dx| below 4.5 sigma of it), the rest are drawn as without it; near_prob 0
-    leaves every draw as it was (no random number taken)."""
-    from rhaml_jax.refine.train import initial_pose
-
-    truth = np.array([3.0, 0.5, 0.3])
-    plain = [initial_pose(truth, np.random.default_rng(i)) for i in range(200)]
-    same = [initial_pose(truth, np.random.default_rng(i), near_prob=0.0) for i in range(200)]
-    np.testing.assert_array_equal(plain, same)
-    near_flag = [np.random.default_rng(i).random() < 0.25 for i in range(4000)]
-    draws = np.array([initial_pose(truth, np.random.default_rng(i), near_prob=0.25) for i in range(4000)]) - truth
-    near, rest = draws[np.array(near_flag)], draws[~np.array(near_flag)]
-    assert abs(len(near) / 4000 - 0.25) < 0.03
-    assert np.abs(near[:, :2]).max() < 4.5 * 0.15 * 0.25 and np.abs(near[:, 2]).max() < 4.5 * np.deg2rad(20) * 0.25
-    assert np.abs(rest[:, :2]).max() > 0.3  # the paper's and the IML-like draws are still there

@@ -48,9 +48,6 @@ class RefinerConfig:
     """output scales of (v_x, v_y), v_z, rotation (rad), mask logits init: keeps the first updates small"""
     luma: bool = False
     """input luminance (observed, render) and the render's mask instead of RGB + RGB + mask"""
-    near_prob: float = 0.0
-    """training: the fraction of initial poses drawn near the truth (`refine.train.initial_pose`),
-    where later test-time iterations start"""
 
 
 def luminance(rgb):
@@ -65,7 +62,6 @@ def in_channels(cfg) -> int:
 
 
 REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerConfig(name="refiner_cpu_luma", luma=True),
-                   "refiner_cpu_near": RefinerConfig(name="refiner_cpu_near", near_prob=0.25),
                    "refiner_micro": RefinerConfig(name="refiner_micro", crop=32,
                                                                                    widths=(8, 16), hidden=32,
                                                                                    n_points=64)}

@@ -44,15 +44,10 @@ def _corners(vertices: np.ndarray) -> np.ndarray:
     return lo + sel * (hi - lo)
 
 
-def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0, near_prob: float = 0.0) -> np.ndarray:
+def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
     """(3,) an initial planar estimate around the true `xypsi` (see the module docstring); `scale`:
-    the robot's world scale, which the paper's 0.15 m position noise is multiplied by; with
-    probability `near_prob` the paper's noise times U(0, 0.25) instead: the starts of the later
-    test-time iterations, where the update should vanish."""
+    the robot's world scale, which the paper's 0.15 m position noise is multiplied by."""
     x, y, psi = xypsi
-    if near_prob > 0 and rng.random() < near_prob:
-        k = 0.25 * rng.random()
-        return np.array([x + rng.normal(0, 0.15 * scale * k), y + rng.normal(0, 0.15 * scale * k), psi + rng.normal(0, np.deg2rad(20) * k)])
     if rng.random() < 0.5:  # the paper's noise, in the robot's world
         sigma = 0.15 * scale
         return np.array([x + rng.normal(0, sigma), y + rng.normal(0, sigma), psi + rng.normal(0, np.deg2rad(20))])
@@ -126,11 +121,7 @@ class CropSource:
 
 class RefinerSource(CropSource):
     """batch(step) of B examples number step * B ... (step + 1) * B - 1 (a pure function of
-    (seed, step)): `CropSource` crops at the config's margin, with the poses (a fraction
-    `cfg.near_prob` of them drawn near the truth)."""
-
-    def initial(self, xypsi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        return initial_pose(xypsi, rng, self.scale, self.cfg.near_prob)
+    (seed, step)): `CropSource` crops at the config's margin, with the poses."""
 
     def example(self, index: int):
         f, T_init, box, obs, m = self.drawn(index)
