@@ -1,12 +1,15 @@
 """A refiner on a validation split, iteration by iteration: where a training curriculum is chosen.
 
   python experiments/refiner_val.py --refiner RUN_OR_EXPORT --data BOP_SET [--split val] [--num 96] [--json out.json]
+  python experiments/refiner_val.py ... --iml-json IML.json   # starts: the IML's estimates (evaluate --split val --json)
 
 The examples are the training's own draws on that split (`refine.train.RefinerSource`: the
 initial pose as the paper's noise or as our IML errs, half each, a pure function of (seed,
-index)), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in
+index)), or with `--iml-json` the IML's own estimates of the split's detected robot frames (as
+the pipeline starts IR), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in
 the camera frame of the frame's true camera (so the frames' varied camera heights do not enter
-the error). Prints, after each learned iteration: the point-matching loss (eq. 8, L1, m), the
+the error). Prints, after each learned iteration: the point-matching loss (eq. 8, L1, m; mean
+and median), the
 mean |dx|, |dy| of the planar error in the camera's ground axes (depth, lateral; cm), the mean
 |dpsi| (deg, about the camera's vertical axis), the median range bias (%) and the flips.
 """
@@ -43,7 +46,19 @@ class Args:
     seed: int = 10_000
     """the training's validation seed (train uses seed + 10,000)"""
     n_iter: int = 4
+    iml_json: Path | None = None
+    """`evaluate --data DATA --split SPLIT --modules iml --json`: start from its estimates (every
+    detected robot frame once; --num is then ignored)"""
     json: Path | None = None
+
+
+def _planar(xypsi) -> np.ndarray:
+    """(4, 4) the robot's pose in the observer's robot frame from a planar (x, y, psi)."""
+    T = np.eye(4)
+    c, s = np.cos(xypsi[2]), np.sin(xypsi[2])
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:2, 3] = xypsi[:2]
+    return T
 
 
 def _errors(T: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> dict:
@@ -75,10 +90,16 @@ def run(a: Args) -> list[dict]:
         out = N.apply(rc, ref.params, render_input(mesh, rc, obs[None], jaxlie.SE3(wxyz_xyz[None]), K, bx))
         return N.apply_update(jaxlie.SE3(wxyz_xyz[None]), out.update, K, bx).wxyz_xyz[0]
 
+    if a.iml_json is None:
+        starts = [(i % len(src.frames), src.drawn(i)[1]) for i in range(a.num)]
+    else:  # the IML's planar estimate, in the frame's own camera (as CropSource.drawn places a drawn one)
+        est = {(r["scene_id"], r["im_id"]): r["est"] for r in json.loads(a.iml_json.read_text())["frames"] if r["detected"]}
+        starts = [(i, f.T_w2c @ _planar(est[(f.scene_id, f.im_id)])) for i, f in enumerate(src.frames)
+                  if (f.scene_id, f.im_id) in est]
     Ts, T_gts = [], []
-    for i in range(a.num):
-        f, T_init, _, _, _ = src.drawn(i)
-        rgb, _ = src._image(i % len(src.frames))
+    for i, T_init in starts:
+        f = src.frames[i]
+        rgb, _ = src._image(i)
         image, K = jnp.asarray(rgb, jnp.float32) / 255, jnp.asarray(f.K, jnp.float32)
         w = jaxlie.SE3.from_matrix(jnp.asarray(T_init, jnp.float32)).wxyz_xyz
         its = [np.asarray(T_init)]
@@ -91,8 +112,9 @@ def run(a: Args) -> list[dict]:
     rows = []
     for k in range(a.n_iter + 1):
         e = _errors(Ts[:, k], T_gts, points)
-        rows.append({"refiner": str(a.refiner), "data": str(a.data), "split": a.split, "iteration": k, "n": a.num,
-                     "pm_m": float(e["pm"].mean()), "depth_cm": float(100 * e["depth"].mean()),
+        rows.append({"refiner": str(a.refiner), "data": str(a.data), "split": a.split, "iteration": k, "n": len(starts),
+                     "starts": "drawn" if a.iml_json is None else "iml",
+                     "pm_m": float(e["pm"].mean()), "median_pm_m": float(np.median(e["pm"])), "depth_cm": float(100 * e["depth"].mean()),
                      "lateral_cm": float(100 * e["lateral"].mean()), "dpsi_deg": float(np.rad2deg(e["dpsi"]).mean()),
                      "median_dpsi_deg": float(np.rad2deg(np.median(e["dpsi"]))),
                      "range_bias_pct": float(100 * np.median(e["range"])), "flips": int((e["dpsi"] > np.pi / 2).sum())})
