@@ -8,7 +8,7 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v3 training images at 320 x 256, and a tenth as many at 640 x 480 for the refiner | 15 % | 0.024 s per image (the refiner's tenth included) at 604 mesh faces, 0.1 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
+| data: v3 training images at 320 x 256, a tenth as many at 640 x 480 for the refiner, and a twentieth as many plain-look ones at 640 x 480 for its first steps | 15 % | 0.024 s per image (the refiner's tenth included) and 0.045 s per plain-look refiner image at 604 mesh faces, 0.1 s and 0.4 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
 | amlnet: `cpu_heat`, batch 32 | 45 % | 0.9 s per step | steps |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
