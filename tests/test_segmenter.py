@@ -35,7 +35,7 @@ def run(bop_set, tmp_path_factory):
     return train_tiny("segmenter", "segmenter_micro", bop_set, tmp_path_factory.mktemp("segrun"))
 
 
-def test_cli_trains_resumes_and_logs(run):
+def test_cli_trains_resumes_and_logs(run, tmp_path):
     out, res, args = run
     rows = [json.loads(l) for l in (out / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in rows] == [2, 4] and all(np.isfinite(r["loss"]) for r in rows)
@@ -44,8 +44,12 @@ def test_cli_trains_resumes_and_logs(run):
 
     with pytest.raises(RhamlError, match="already holds a checkpoint"):
         main(args)
-    with pytest.raises(RhamlError, match="starts from its own initialisation"):
-        main(args + ["--init", str(out)])
+    # --init: a new run fine-tunes from this one's weights (and says so in its checkpoints)
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta
+
+    ft = [tmp_path / "ft" if a == str(out) else a for a in args]
+    assert main([str(a) for a in ft] + ["--init", str(out)])["step"] == 4
+    assert checkpoint_meta(tmp_path / "ft")["initialised_from"] == str(out)
 
 
 def test_checkpoint_rebuilds_and_refuses_another_robot_or_kind(run, bop_set, tmp_path):
