@@ -6,12 +6,11 @@
 The examples are the training's own draws on that split (`refine.train.RefinerSource`: the
 initial pose as the paper's noise or as our IML errs, half each, a pure function of (seed,
 index)), or with `--iml-json` the IML's own estimates of the split's detected robot frames (as
-the pipeline starts IR), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in
-the camera frame of the frame's true camera (so the frames' varied camera heights do not enter
-the error). Prints, after each learned iteration: the point-matching loss (eq. 8, L1, m; mean
-and median), the
-mean |dx|, |dy| of the planar error in the camera's ground axes (depth, lateral; cm), the mean
-|dpsi| (deg, about the camera's vertical axis), the median range bias (%) and the flips.
+the pipeline starts IR), and the refiner runs as at test time: re-cropped and re-rendered at each new pose, in the
+frame's true camera (so the frames' varied camera heights do not enter the error). Prints, after
+each learned iteration: the point-matching loss (eq. 8, L1, m; mean and median), the mean depth
+and lateral errors (cm), the mean and median |dpsi| (deg, about the camera's vertical axis), the
+median range bias (%) and the flips.
 """
 
 from __future__ import annotations
@@ -26,7 +25,7 @@ import jaxlie
 import numpy as np
 import tyro
 
-from rhaml_jax import allocator, render
+from rhaml_jax import allocator, frames, render
 from rhaml_jax import crop as _crop
 from rhaml_jax.data import load_bop_model
 from rhaml_jax.refine import load_refiner
@@ -50,15 +49,6 @@ class Args:
     """`evaluate --data DATA --split SPLIT --modules iml --json`: start from its estimates (every
     detected robot frame once; --num is then ignored)"""
     json: Path | None = None
-
-
-def _planar(xypsi) -> np.ndarray:
-    """(4, 4) the robot's pose in the observer's robot frame from a planar (x, y, psi)."""
-    T = np.eye(4)
-    c, s = np.cos(xypsi[2]), np.sin(xypsi[2])
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:2, 3] = xypsi[:2]
-    return T
 
 
 def _errors(T: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> dict:
@@ -94,7 +84,7 @@ def run(a: Args) -> list[dict]:
         starts = [(i % len(src.frames), src.drawn(i)[1]) for i in range(a.num)]
     else:  # the IML's planar estimate, in the frame's own camera (as CropSource.drawn places a drawn one)
         est = {(r["scene_id"], r["im_id"]): r["est"] for r in json.loads(a.iml_json.read_text())["frames"] if r["detected"]}
-        starts = [(i, f.T_w2c @ _planar(est[(f.scene_id, f.im_id)])) for i, f in enumerate(src.frames)
+        starts = [(i, f.T_w2c @ np.asarray(frames.se3_from_xypsi(jnp.asarray(est[(f.scene_id, f.im_id)])).as_matrix())) for i, f in enumerate(src.frames)
                   if (f.scene_id, f.im_id) in est]
     Ts, T_gts = [], []
     for i, T_init in starts:
