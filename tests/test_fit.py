@@ -140,19 +140,23 @@ def test_budget_rule():
     assert abs(t.amlnet_steps - q.amlnet_steps) <= 1 and t.scale == 0.39
     # the refiner renders too: 0.13 s per step at 604 faces, 0.5 s at 91,104
     assert (q.refiner_steps, t.refiner_steps) == (int(0.1 * (2700 - F) / 0.13), int(0.1 * (2700 - F) / 0.5))
-    # what a capped stage leaves goes to the trainings: at 80 min the data (20,000 images) and the
-    # refiner (3000 steps) are capped, and AMLNet and the zoom stage get their seconds by share
-    S = 80 * 60 - F
-    r = make_plan(80)
+    # what a capped stage leaves goes to the trainings: at 90 min the data (20,000 images) is
+    # capped, so is the refiner (3000 steps of its share), and AMLNet and the zoom stage get their seconds by share
+    S = 90 * 60 - F
+    r = make_plan(90)
     assert r.images + r.negatives == 20000 and r.refiner_steps == 3000 and r.frames < 500
-    spare = S - 20000 * (0.024 * 1.1 + 0.045 / 20) - 0.45 * S - 0.12 * S - 3000 * 0.13 - 6 * r.frames * 0.32
+    spare = S - 20000 * (0.024 * 1.1 + 0.045 / 20) - 0.45 * S - 0.12 * S - r.refiner_steps * 0.13 - 6 * r.frames * 0.32
     assert spare > 100
     assert abs(r.amlnet_steps - (0.45 * S + spare * 45 / 57) / 0.9) <= 2
     assert abs(r.zoom_steps - (0.12 * S + spare * 12 / 57) / 0.1) <= 2
-    planned = (r.images + r.negatives) * (0.024 * 1.1 + 0.045 / 20) + r.amlnet_steps * 0.9 + r.zoom_steps * 0.1 + 3000 * 0.13 + 6 * r.frames * 0.32
+    planned = (r.images + r.negatives) * (0.024 * 1.1 + 0.045 / 20) + r.amlnet_steps * 0.9 + r.zoom_steps * 0.1 + r.refiner_steps * 0.13 + 6 * r.frames * 0.32
     assert 0.99 * S <= planned <= S
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
+    # once AMLNet and the zoom stage are capped, what is left goes to the refiner, up to 6000 steps
+    assert big.refiner_steps == 6000 and make_plan(110).refiner_steps == 3000
+    mid = make_plan(118)  # AMLNet and zoom capped, the refiner between its caps
+    assert (mid.amlnet_steps, mid.zoom_steps) == (4000, 10_000) and 3000 < mid.refiner_steps < 6000
     with pytest.raises(RhamlError, match="give at least 13 minutes"):
         make_plan(3)  # less than the evaluation's compilations
     with pytest.raises(RhamlError, match=r"frames 16 < 20\); give at least 13 minutes"):
@@ -168,6 +172,7 @@ def test_budget_rule():
     # from scratch the zoom stage may run longer (17,000 steps: 12,000 on v1 images, 5,000 on the mix)
     long = make_plan(131, warm_start=False)
     assert (long.zoom_steps, long.zoom_v1_steps) == (17_000, 12_000) and make_plan(131).zoom_steps == 10_000
+    assert 3000 < long.refiner_steps < 6000  # the refiner's extra steps come after the zoom stage's
     assert (make_plan(75).v1_images, make_plan(75).zoom_v1_steps) == (0, 0)  # fine-tuning needs none
     # the refiner always starts from random weights: its first 2/3 on v1 images, a twentieth as many as v3 ones
     for q in (scratch, long, make_plan(75)):

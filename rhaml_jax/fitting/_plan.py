@@ -21,7 +21,8 @@ flip calibration (`calibrate_flips` on the training set's validation split): 17 
 9 min in all. The shares split the rest.
 
 The seconds a capped stage leaves (below) go to AMLNet and the zoom stage, in proportion to
-their shares, up to their caps: the budget is spent on training, not left unused.
+their shares, up to their caps, and then to the refiner: the budget is spent on training, not
+left unused.
 
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
 points measured on this machine, the built-in Pioneer (604 faces, the from-scratch 110-minute
@@ -38,7 +39,8 @@ their configs, `heat_cpu` and `zoom_luma_cpu` (`warm_start`: fine-tuning at half
 rate; `fit --from-scratch` starts from random weights, as reproducing the shipped networks must).
 
 Counts are capped where more stops paying (AMLNet at 4000 steps, 20,000 images per training
-pass, 500 frames per scenario as DESIGN.md fixes) and a stage below its minimum (AMLNet 100
+pass, 500 frames per scenario as DESIGN.md fixes; the refiner at 3,000 steps of its share, and
+up to 6,000 with what is left once AMLNet and the zoom stage are capped) and a stage below its minimum (AMLNet 100
 steps when fine-tuning, 2,000 from scratch; 1,000 images) makes the budget too small: `fit`
 says so and the smallest budget that would do, before it starts anything.
 
@@ -57,7 +59,10 @@ The refiner always starts from random weights, and likewise learns first on plai
 of its steps, then on the v3 ones from those weights: chosen on the validation splits (eq. 8's
 point-matching loss after four test-time iterations, v3 / v1): v3 alone 0.339 / 0.298, v1 then
 v3 0.310 / 0.198, v1 then v3 + v1 0.346 / 0.169, v1 alone 0.628 / 0.170 (BENCHMARKS.md, "A
-curriculum for the refiner").
+curriculum for the refiner"); twice as many steps (4,000 + 2,000) were better again on both
+(0.279 / 0.174), so it takes up to 6,000 steps once AMLNet and the zoom stage are capped (the
+zoom stage's heading comes first: at 131 minutes from scratch the extra steps would have cost
+it 3,400 of its 17,000).
 """
 
 from __future__ import annotations
@@ -79,6 +84,7 @@ V1_REFINE_IMAGE_S = (0.045, 0.4)  # v1 at 640 x 480 (measured 0.09 s with one pr
 EVAL_FRAME_S = (0.32, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
+REFINER_SPARE_CAP = 6000  # the refiner's steps when AMLNet and the zoom stage are capped and seconds are left
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 EVAL_COMPILE_S = 32.0
 """seconds each `evaluate` run spends compiling before its first frame (the 110- and 30-minute
@@ -196,11 +202,14 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}
-    caps = CAPS_FROM_SCRATCH if curriculum else CAPS
+    caps = dict(CAPS_FROM_SCRATCH if curriculum else CAPS)
     counts = {k: min(caps[k], int(seconds[k] / unit[k])) for k in unit}
-    for _ in range(2):  # what capped stages leave goes to the trainings below their caps, by share
+    for _ in range(3):  # what capped stages leave goes to the trainings below their caps, by share
         spare = s - sum(counts[k] * unit[k] for k in unit)
         open_ = [k for k in ("amlnet_steps", "zoom_steps") if counts[k] < caps[k]]
+        if not open_:  # then to the refiner, up to its larger cap
+            caps["refiner_steps"] = REFINER_SPARE_CAP
+            open_ = ["refiner_steps"] if counts["refiner_steps"] < REFINER_SPARE_CAP else []
         if spare < 1.0 or not open_:
             break
         total = sum(seconds[k] for k in open_)
