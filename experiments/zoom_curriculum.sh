@@ -11,12 +11,11 @@
 set -e
 : "${V1:?}" "${V3:?}" "${MIX:?}" "${AMLNET:?}" "${DATA:=/work/data}" "${OUT:?}"
 PY=${PY:-python}
-zoom() { $PY -m rhaml_jax.train --stage zoom --robot pioneer3dx --config zoom_cpu_luma --zoom-length-m 0.455 --w-xy 69.4 526 \
-             --batch 32 --no-progress "$@"; }
-[ -d "$OUT/zoom_v1_12k/checkpoints" ] && R=--resume || R=
-zoom --data "$V1" --steps 12000 --val-every 2000 --out "$OUT/zoom_v1_12k" $R
-[ -d "$OUT/zoom_mix_12k/checkpoints" ] && R=--resume || R=
-zoom --data "$MIX" --steps 5000 --val-every 1000 --init "$OUT/zoom_v1_12k" --lr 5e-4 --warmup 100 --out "$OUT/zoom_mix_12k" $R
+zoom() { out=$1; shift; [ -d "$out/checkpoints" ] && R=--resume || R=
+         $PY -m rhaml_jax.train --stage zoom --robot pioneer3dx --config zoom_cpu_luma --zoom-length-m 0.455 --w-xy 69.4 526 \
+             --batch 32 --no-progress --out "$out" $R "$@"; }
+zoom "$OUT/zoom_v1_12k" --data "$V1" --steps 12000 --val-every 2000
+zoom "$OUT/zoom_mix_12k" --data "$MIX" --steps 5000 --val-every 1000 --init "$OUT/zoom_v1_12k" --lr 5e-4 --warmup 100
 for tag in zoom_v1_12k zoom_mix_12k; do
   $PY -c "from rhaml_jax.amlnet import export_weights as e; e('$OUT/$tag', '$OUT/net_$tag')"
   ev() { $PY -m rhaml_jax.evaluate --modules iml --amlnet "$AMLNET" --zoom "$OUT/net_$tag" --zoom-mirror --json "$OUT/$1_$tag.json" "${@:2}" > /dev/null; }

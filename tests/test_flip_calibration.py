@@ -12,8 +12,8 @@ import pytest
 
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.metrics import flipped
-from tests.conftest import random_checkpoint
 from rhaml_jax.zoom import FlipCalibration, calibration_metrics, fit_flip_calibration, flip_probability, write_flip_calibration
+from tests.conftest import random_checkpoint
 
 
 def _platt_objective(w, r, t):

@@ -202,14 +202,14 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}
-    caps = dict(CAPS_FROM_SCRATCH if curriculum else CAPS)
+    caps = CAPS_FROM_SCRATCH if curriculum else CAPS
     counts = {k: min(caps[k], int(seconds[k] / unit[k])) for k in unit}
     for _ in range(3):  # what capped stages leave goes to the trainings below their caps, by share
         spare = s - sum(counts[k] * unit[k] for k in unit)
         open_ = [k for k in ("amlnet_steps", "zoom_steps") if counts[k] < caps[k]]
         if not open_:  # then to the refiner, up to its larger cap
-            caps["refiner_steps"] = REFINER_SPARE_CAP
-            open_ = ["refiner_steps"] if counts["refiner_steps"] < REFINER_SPARE_CAP else []
+            caps = caps | {"refiner_steps": REFINER_SPARE_CAP}
+            open_ = [k for k in ("refiner_steps",) if counts[k] < caps[k]]
         if spare < 1.0 or not open_:
             break
         total = sum(seconds[k] for k in open_)
