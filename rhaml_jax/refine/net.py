@@ -24,6 +24,7 @@ import jaxlie
 import numpy as np
 
 __all__ = ["RefinerConfig", "init_params", "apply", "apply_update", "point_matching_loss", "mask_loss",
+           "target_update", "update_loss",
            "config_to_dict", "config_from_dict", "REFINER_CONFIGS", "get_refiner_config"]
 
 
@@ -48,6 +49,15 @@ class RefinerConfig:
     """output scales of (v_x, v_y), v_z, rotation (rad), mask logits init: keeps the first updates small"""
     luma: bool = False
     """input luminance (observed, render) and the render's mask instead of RGB + RGB + mask"""
+    loss: str = "disentangled"
+    """training loss of the pose update: "disentangled" (eq. 8 once per part of the update, the
+    other parts set to their true values: CosyPose's disentangled loss) or "joint" (eq. 8 on the
+    whole updated pose, the runs before session 17). Under the joint L1 loss a translation error
+    larger than the heading's gives every point's error the same sign, and the gradient on the
+    heading cancels over the model's points (`tests/test_refine_learned.py`); the refiner's
+    heading never learned with it (BENCHMARKS.md, "The refiner learns the heading")"""
+    part_weights: tuple[float, float, float] = (1.0, 1.0, 10.0)
+    """the disentangled loss's weights of its (image-plane offsets, depth, rotation) parts"""
 
 
 def luminance(rgb):
@@ -99,7 +109,7 @@ def dataclass_from_dict(cls, d: dict):
 
 
 def config_from_dict(d: dict) -> RefinerConfig:
-    return dataclass_from_dict(RefinerConfig, d)
+    return dataclass_from_dict(RefinerConfig, {"loss": "joint", **d})  # stored before `loss` existed: joint
 
 
 def _conv_init(key, k, cin, cout):
@@ -175,6 +185,32 @@ def apply_update(T_cam_model: jaxlie.SE3, update, K, box):
     t_new = jnp.stack([xr * z_tgt, yr * z_tgt, z_tgt], -1)
     R = jaxlie.SO3.exp(update[..., 3:6]) @ T_cam_model.rotation()
     return jaxlie.SE3.from_rotation_and_translation(R, t_new)
+
+
+def target_update(T_src: jaxlie.SE3, T_tgt: jaxlie.SE3, K, box):
+    """(..., 6) the update that `apply_update` turns T_src into T_tgt with (its inverse)."""
+    ts, tt = T_src.translation(), T_tgt.translation()
+    zs, zt = jnp.maximum(ts[..., 2], 1e-3), jnp.maximum(tt[..., 2], 1e-3)  # guard as in apply_update
+    bw, bh = box[..., 2] - box[..., 0], box[..., 3] - box[..., 1]
+    vx = (tt[..., 0] / zt - ts[..., 0] / zs) * K[..., 0, 0] / bw
+    vy = (tt[..., 1] / zt - ts[..., 1] / zs) * K[..., 1, 1] / bh
+    rot = (T_tgt.rotation() @ T_src.rotation().inverse()).log()
+    return jnp.concatenate([jnp.stack([vx, vy, jnp.log(zs / zt)], -1), rot], -1)
+
+
+def update_loss(cfg: RefinerConfig, T_src: jaxlie.SE3, update, T_gt: jaxlie.SE3, K, box, points):
+    """(B,) the pose part of the training loss (`RefinerConfig.loss`) of `update` (B, 6) from T_src."""
+    if cfg.loss == "joint":
+        return point_matching_loss(apply_update(T_src, update, K, box), T_gt, points)
+    if cfg.loss != "disentangled":
+        raise ValueError(f"RefinerConfig.loss {cfg.loss!r}: not 'joint' or 'disentangled'")
+    true = jax.lax.stop_gradient(target_update(T_src, T_gt, K, box))
+    parts = [slice(0, 2), slice(2, 3), slice(3, 6)]  # image-plane offsets, depth, rotation
+    total = 0.0
+    for part, w in zip(parts, cfg.part_weights):
+        mixed = true.at[..., part].set(update[..., part])
+        total = total + w * point_matching_loss(apply_update(T_src, mixed, K, box), T_gt, points)
+    return total
 
 
 def point_matching_loss(T_pred: jaxlie.SE3, T_gt: jaxlie.SE3, points):

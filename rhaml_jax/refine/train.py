@@ -158,11 +158,12 @@ def refiner_loss(cfg: N.RefinerConfig, mesh, points, params, b):
     T0 = jaxlie.SE3(T_init)
     x = render_input(mesh, cfg, obs, T0, K, box)
     out = N.apply(cfg, params, x)
-    T1 = N.apply_update(T0, out.update, K, box)
-    pm = N.point_matching_loss(T1, jaxlie.SE3(T_gt), points)
-    pm0 = N.point_matching_loss(T0, jaxlie.SE3(T_gt), points)
+    Tg = jaxlie.SE3(T_gt)
+    pose = N.update_loss(cfg, T0, out.update, Tg, K, box, points)
+    pm = N.point_matching_loss(N.apply_update(T0, out.update, K, box), Tg, points)
+    pm0 = N.point_matching_loss(T0, Tg, points)
     ce = N.mask_loss(out.mask_logits, obs_mask)
-    loss = jnp.mean(pm) + cfg.w_mask * jnp.mean(ce)
+    loss = jnp.mean(pose) + cfg.w_mask * jnp.mean(ce)
     return loss, {"loss": loss, "loss_pm": jnp.mean(pm), "loss_pm_init": jnp.mean(pm0), "loss_mask": jnp.mean(ce)}
 
 
