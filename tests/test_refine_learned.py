@@ -157,6 +157,12 @@ def test_the_disentangled_loss_weighs_its_parts():
     np.testing.assert_allclose(np.asarray(ratio), 10.0, rtol=1e-4)
 
 
+@pytest.mark.parametrize("bad", [{"loss": "l2"}, {"part_weights": (1.0, -1.0, 1.0)}, {"part_weights": (0.0, 0.0, 0.0)}])
+def test_a_bad_loss_setting_is_refused(bad):
+    with pytest.raises(RhamlError, match="RefinerConfig"):
+        N.RefinerConfig(**bad)
+
+
 def test_the_disentangled_loss_turns_the_heading_where_the_joint_one_cannot():
     """Why `RefinerConfig.loss` exists: with the source 30 cm off in x and y, eq. 8's L1 gives
     every point's error the sign of the translation error, so its gradient on the rotation about

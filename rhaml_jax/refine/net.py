@@ -59,6 +59,14 @@ class RefinerConfig:
     part_weights: tuple[float, float, float] = (1.0, 1.0, 10.0)
     """the disentangled loss's weights of its (image-plane offsets, depth, rotation) parts"""
 
+    def __post_init__(self):
+        from rhaml_jax.errors import RhamlError
+
+        if self.loss not in ("joint", "disentangled"):
+            raise RhamlError(f"RefinerConfig.loss {self.loss!r}: expected 'joint' or 'disentangled'")
+        if len(self.part_weights) != 3 or min(self.part_weights) < 0 or max(self.part_weights) <= 0:
+            raise RhamlError(f"RefinerConfig.part_weights {self.part_weights}: expected three weights >= 0, one > 0")
+
 
 def luminance(rgb):
     """(..., 3) RGB -> (...,) BT.601 luminance (`amlnet.model.LUMA`, as AMLNet's luma input)."""
@@ -202,8 +210,6 @@ def update_loss(cfg: RefinerConfig, T_src: jaxlie.SE3, update, T_gt: jaxlie.SE3,
     """(B,) the pose part of the training loss (`RefinerConfig.loss`) of `update` (B, 6) from T_src."""
     if cfg.loss == "joint":
         return point_matching_loss(apply_update(T_src, update, K, box), T_gt, points)
-    if cfg.loss != "disentangled":
-        raise ValueError(f"RefinerConfig.loss {cfg.loss!r}: not 'joint' or 'disentangled'")
     true = jax.lax.stop_gradient(target_update(T_src, T_gt, K, box))
     parts = [slice(0, 2), slice(2, 3), slice(3, 6)]  # image-plane offsets, depth, rotation
     total = 0.0
