@@ -89,7 +89,7 @@ def run(a: Args) -> list[dict]:
     Ts, T_gts = [], []
     for i, T_init in starts:
         f = src.frames[i]
-        rgb, _ = src._image(i)
+        rgb, _ = src.image(i)
         image, K = jnp.asarray(rgb, jnp.float32) / 255, jnp.asarray(f.K, jnp.float32)
         w = jaxlie.SE3.from_matrix(jnp.asarray(T_init, jnp.float32)).wxyz_xyz
         its = [np.asarray(T_init)]

@@ -65,6 +65,9 @@ class Args:
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
+    no_range_calibration: bool = False
+    """pgo (batch): fuse the observations as they are, without calibrating their range error from
+    odometry (`pgo.range_model`) and fusing again"""
     batch: int = 32
     """frames per network call"""
     allow_other_robot: bool = False
@@ -132,7 +135,8 @@ def _load(args: Args, modules):
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
                                                     segmenter=args.segmenter, scorer=args.scorer)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
-    cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch)
+    cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
+                                  calibrate_range=not args.no_range_calibration)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
 
 
@@ -163,13 +167,15 @@ def run(args: Args) -> dict:
         m["iml_flip"]["calibrated"] = model.iml.flip_calibration is not None
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
-              "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows))}
+              "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
+              "range_model": [[float(v) for v in r.result.range_model] for r in runs]}
     return {"metrics": m, "frames": rows}
 
 
 def frame_rows(run, fused: bool) -> list[dict]:
     """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
-    and flip probability and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    and flip probability, with ir the refined estimate, its roll and pitch (rad) and flip probability,
+    and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
     res, data = run.result, run.data
     rows = []
     for i, f in enumerate(data.frames):
@@ -179,6 +185,9 @@ def frame_rows(run, fused: bool) -> list[dict]:
                "gt": [float(v) for v in data.gt[i]] if f.observed else None,
                "o": float(res.iml.o[i]), "detected": bool(res.detected[i]),
                "iml_est": [float(v) for v in res.iml.xypsi[i]], "iml_flip_prob": float(res.iml.flip_prob[i])}
+        if res.ir is not None:
+            row |= {"ir_est": [float(v) for v in res.ir.xypsi[i]], "ir_roll_pitch": [float(v) for v in res.ir.roll_pitch[i]],
+                    "ir_flip_prob": float(res.ir.flip_prob[i])}
         if res.fusion is not None:
             row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
         rows.append(row)

@@ -122,3 +122,4 @@ def test_pgo_metrics_match_its_own_per_frame_json(setup, tmp_path):
     np.testing.assert_allclose(m["ate"], ref["ate"], rtol=1e-4)
     assert m["pgo_rejected"] == sum(r["detected"] and not r["pgo_inlier"] for r in rows)
     assert m["modules"] == ["iml", "pgo"] and m["pgo_mode"] == "batch" and m["information"] == "noise_model"
+    assert len(m["range_model"]) == 1 and len(m["range_model"][0]) == 2  # one scene: its range model's c

@@ -82,7 +82,8 @@ class CropSource:
         self.cfg, self.batch, self.seed = cfg, batch, seed
         self._cache = ImageCache(self.cache_bytes)
 
-    def _image(self, i):
+    def image(self, i):
+        """(H, W, 3) uint8 RGB and (H, W) uint8 mask (0 or 255) of frame i (decoded once, cached)."""
         from rhaml_jax.data import load_mask, load_rgb
 
         f = self.frames[i]
@@ -112,7 +113,7 @@ class CropSource:
         T_init = f.T_w2c @ T_obs
         pc = self.corners @ T_init[:3, :3].T + T_init[:3, 3]
         box = np.asarray(_crop.object_box(f.K, pc, margin=margin), np.float64)
-        rgb, mask = self._image(i)
+        rgb, mask = self.image(i)
         S = self.cfg.crop
         obs = _crop.crop_image_host(rgb, box, S, S).astype(np.float32) / 255
         m = _crop.crop_image_host(np.repeat(mask[..., None], 3, -1), box, S, S)[..., 0].astype(np.float32) / 255
