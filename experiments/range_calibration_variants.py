@@ -1,45 +1,80 @@
-"""Range-calibration variants on stored per-frame IR estimates (evaluate --json with ir_est):
-the pipeline's fuse -> range_model -> rescale -> fuse, with the range model's weights varied."""
-import json, sys
-import numpy as np, jax, jax.numpy as jnp
+"""How well the pose graph's range calibration (`pgo.range_model`) finds a localiser's range bias,
+from the per-frame estimates `evaluate --modules iml,ir,pgo --json` stores (no network runs here).
+
+  python experiments/range_calibration_variants.py --runs EVAL.json DATA [EVAL.json DATA ...] --out OUT.json
+
+For each run, and for the refined (`ir_est`) and the IML's (`iml_est`) estimates: the pipeline's
+batch fusion (fuse, calibrate, rescale, fuse again, as `pipeline.fuse_estimates`) with the range
+model varied: `off` (no calibration), `absolute` (every observation's x, y error alike: the
+pipeline's model until session 18), `relative` (the error a percentage of the range: the
+pipeline's default since), `slope` (relative, c_1 fitted too). Prints abs dx, dy (cm) and ATE of each, the estimates'
+true range bias (mean log est/true range over the fusion's inliers) and the fitted c_0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
 from pathlib import Path
-from rhaml_jax import pgo, pipeline, metrics
+
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import metrics, pgo
 from rhaml_jax.data import read_bop
 from rhaml_jax.sequence import group_scenes, load_scene
-from rhaml_jax.pgo import _scale
 
-def run(js, data, variant, key):
-    rows = json.load(open(js))['frames']
-    frames = read_bop(Path(data))
-    sc = load_scene(list(group_scenes(frames).values())[0])
-    seq = sc.seq
+VARIANTS = ("off", "absolute", "relative", "slope")
+
+
+def fused(rows: list[dict], scene, key: str, variant: str):
+    """(N, 3) the fused estimates and c (2,) of one range-model variant."""
+    seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
-    fp = jnp.asarray([r['ir_flip_prob' if key == 'ir_est' else 'iml_flip_prob'] for r in rows], jnp.float32)
-    det = jnp.asarray([r['detected'] for r in rows])
+    flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
+    det = jnp.asarray([r["detected"] for r in rows])
     cfg = pgo.FusionConfig()
-    obs = pgo.observation_from_xy_yaw_rp(xypsi, None)
-    rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, obs, seq.a_observes)
-    f1 = pgo.fuse_jit(rv, cfg, valid=det, flip_prob=fp)
-    used = (f1.inlier & det).astype(jnp.float32)
-    if variant == 'off':
+    rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
+    first = pgo.fuse_jit(rv, cfg, valid=det, flip_prob=flip)
+    used = (first.inlier & det).astype(jnp.float32)
+    F = first.odom_a_T_odom_b
+    if variant == "off":
         c = jnp.zeros(2)
-    elif variant == 'on':
-        c = pgo.range_model(rv, f1.odom_a_T_odom_b, used, cfg.obs_sigma_xy_m)
-    elif variant == 'relw':  # sigma proportional to the range (a percent error): weights 1/r^2
-        r = jnp.hypot(xypsi[:, 0], xypsi[:, 1])
-        c = pgo.range_model(rv, f1.odom_a_T_odom_b, used * (4.5 / r) ** 2, cfg.obs_sigma_xy_m)
-    elif variant == 'slope':
-        c = pgo.range_model(rv, f1.odom_a_T_odom_b, used, cfg.obs_sigma_xy_m, slope=True)
-    f2 = pgo.fuse_jit(pgo.rescale_observations(rv, c), cfg, valid=det, flip_prob=fp)
-    est = np.asarray(f2.relative)
-    m = metrics.summarize(est[sc.observed], sc.gt[sc.observed])
-    return m['dx_cm'][0], m['dy_cm'][0], m['ate'], [round(float(v), 4) for v in c]
+    elif variant in ("absolute", "relative"):
+        c = pgo.range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=variant == "relative")
+    else:
+        c = pgo.range_model(rv, F, used, cfg.obs_sigma_xy_m, slope=True)
+    second = pgo.fuse_jit(pgo.rescale_observations(rv, c), cfg, valid=det, flip_prob=flip)
+    return np.asarray(second.relative), np.asarray(c), np.asarray(first.inlier & det)
 
-out = []
-for js, data in zip(sys.argv[1::2], sys.argv[2::2]):
-    for key in ['ir_est', 'iml_est']:
-        for v in ['off', 'on', 'relw', 'slope']:
-            dx, dy, ate, c = run(js, data, v, key)
-            out.append(dict(js=js, key=key, variant=v, dx=dx, dy=dy, ate=ate, c=c))
-            print(f'{Path(js).name:45s} {key:7s} {v:6s} dx {dx:5.2f} dy {dy:5.2f} ate {ate:.4f} c {c}', flush=True)
-json.dump(out, open('calvar_out.json', 'w'))
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", nargs="+", required=True, help="pairs: evaluate --json output, its BOP data folder")
+    ap.add_argument("--out", type=Path, required=True)
+    a = ap.parse_args()
+    if len(a.runs) % 2:
+        ap.error("--runs takes pairs EVAL.json DATA")
+    out = []
+    for js, data in zip(a.runs[::2], a.runs[1::2]):
+        rows = json.loads(Path(js).read_text())["frames"]
+        if "ir_est" not in rows[0]:
+            ap.error(f"{js}: no ir_est rows (run evaluate --modules iml,ir,pgo)")
+        scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])
+        gt, seen = scene.gt, scene.observed
+        for key in ("ir_est", "iml_est"):
+            est0 = np.array([r[key] for r in rows])
+            for v in VARIANTS:
+                est, c, inl = fused(rows, scene, key, v)
+                m = metrics.summarize(est[seen], gt[seen])
+                k = inl & seen
+                bias = float(np.mean(np.log(np.hypot(*est0[k, :2].T) / np.hypot(*gt[k, :2].T))))
+                out.append({"run": js, "estimates": key, "variant": v, "dx_cm": m["dx_cm"][0], "dy_cm": m["dy_cm"][0],
+                            "ate": m["ate"], "c": c.tolist(), "bias": bias})
+                print(f"{Path(js).name:36s} {key:7s} {v:8s} dx {m['dx_cm'][0]:5.2f} dy {m['dy_cm'][0]:5.2f} "
+                      f"ATE {m['ate']:.4f}  bias {100 * bias:+.2f} %  c0 {100 * c[0]:+.2f} %", flush=True)
+    a.out.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

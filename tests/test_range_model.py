@@ -36,3 +36,18 @@ def test_no_calibration_from_garbage():
     stuck = np.tile([[6.2, 4.2]], (200, 1)) + np.random.default_rng(1).normal(0, 0.3, (200, 2))
     c = jax.jit(pgo.range_model)(_rendezvous(stuck, odom), jnp.zeros(3), jnp.ones(200))
     assert bool(jnp.all(jnp.isfinite(c))) and abs(float(c[0])) <= 0.3
+
+
+def test_relative_errors_weight_each_observation_by_its_range():
+    """relative=True is the absolute model with weights (R0 / rho)^2, rho the observed range: a
+    percentage read off weighs a far observation less; the two differ on errors that grow with range."""
+    truth = circle(200)
+    odom = noisy_odometry(truth, seed=3)
+    r = np.hypot(truth[:, 0], truth[:, 1])
+    bent = truth[:, :2] * (1.02 + 0.01 * (r - r.mean()))[:, None]  # the error grows with the range
+    rv = _rendezvous(bent, odom)
+    rho = jnp.hypot(rv.observation[:, 4], rv.observation[:, 5])
+    fit = jax.jit(pgo.range_model, static_argnames="relative")
+    rel = fit(rv, jnp.zeros(3), jnp.ones(200))
+    np.testing.assert_allclose(rel, fit(rv, jnp.zeros(3), (pgo.RANGE_R0_M / rho) ** 2, relative=False), atol=1e-5)
+    assert abs(float(rel[0] - fit(rv, jnp.zeros(3), jnp.ones(200), relative=False)[0])) > 1e-4
