@@ -51,3 +51,19 @@ def test_relative_errors_weight_each_observation_by_its_range():
     rel = fit(rv, jnp.zeros(3), jnp.ones(200))
     np.testing.assert_allclose(rel, fit(rv, jnp.zeros(3), (pgo.RANGE_R0_M / rho) ** 2, relative=False), atol=1e-5)
     assert abs(float(rel[0] - fit(rv, jnp.zeros(3), jnp.ones(200), relative=False)[0])) > 1e-4
+
+
+def test_gradient_is_finite_with_an_observation_at_the_observer():
+    """An observation at range 0 (a degenerate row) leaves the fit's gradient finite."""
+    truth = circle(50)
+    odom = noisy_odometry(truth, seed=3)
+    obs_xy = truth[:, :2] * 1.03
+    obs_xy[7] = 0.0
+
+    def c0(xy):
+        obs = pgo.observation_from_xy_yaw_rp(jnp.concatenate([xy, jnp.zeros((50, 1))], -1))
+        rv = pgo.rendezvous_from_frames(jnp.zeros((50, 3)), jnp.asarray(odom, jnp.float32), obs, jnp.ones(50, bool))
+        return pgo.range_model(rv, jnp.zeros(3), jnp.ones(50).at[7].set(0.0))[0]
+
+    g = jax.grad(c0)(jnp.asarray(obs_xy, jnp.float32))
+    assert bool(jnp.all(jnp.isfinite(g))) and float(jnp.abs(g).sum()) > 0

@@ -52,8 +52,9 @@ def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, 
     z = _planar(rv.observation)[:, 2:]  # (K, 2) observed x, y
     oa, ob = rv.odom_a[1:], rv.odom_b[1:]
     w = jnp.sqrt(jnp.asarray(weights, z.dtype))[:, None] / obs_sigma_m
-    if relative:  # sigma grows with the observed range rho, from 1 m on (the floor: finite at rho = 0)
-        w = w * (RANGE_R0_M / jnp.maximum(jnp.sqrt(jnp.sum(z**2, -1, keepdims=True)), 1.0))
+    if relative:  # sigma grows with the observed range rho, from 1 m on (the floor: finite weight
+        # at rho = 0; the 1e-12: a finite gradient there, where sqrt's is infinite)
+        w = w * (RANGE_R0_M / jnp.maximum(jnp.sqrt(jnp.sum(z**2, -1, keepdims=True) + 1e-12), 1.0))
     nc = 2 if slope else 1
     prior = jnp.asarray(prior_sigma[:nc], z.dtype)
 
