@@ -24,11 +24,10 @@ from rhaml_jax import metrics, pgo
 from rhaml_jax.data import read_bop
 from rhaml_jax.sequence import group_scenes, load_scene
 
-VARIANTS = ("off", "absolute", "relative", "slope")
 
-
-def fused(rows: list[dict], scene, key: str, variant: str):
-    """(N, 3) the fused estimates and c (2,) of one range-model variant."""
+def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
+    """Every range-model variant's fused estimates (N, 3) and c (2,), and the first fusion's kept
+    rows (N,) bool, which every variant shares."""
     seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
@@ -36,16 +35,14 @@ def fused(rows: list[dict], scene, key: str, variant: str):
     cfg = pgo.FusionConfig()
     rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
     first = pgo.fuse_jit(rv, cfg, valid=det, flip_prob=flip)
-    used = (first.inlier & det).astype(jnp.float32)
-    F = first.odom_a_T_odom_b
-    if variant == "off":
-        c = jnp.zeros(2)
-    elif variant in ("absolute", "relative"):
-        c = pgo.range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=variant == "relative")
-    else:
-        c = pgo.range_model(rv, F, used, cfg.obs_sigma_xy_m, slope=True)
-    second = pgo.fuse_jit(pgo.rescale_observations(rv, c), cfg, valid=det, flip_prob=flip)
-    return np.asarray(second.relative), np.asarray(c), np.asarray(first.inlier & det)
+    kept = first.inlier & det
+    fit = lambda **kw: pgo.range_model(rv, first.odom_a_T_odom_b, kept.astype(jnp.float32), cfg.obs_sigma_xy_m, **kw)  # noqa: E731
+    cs = {"off": jnp.zeros(2), "absolute": fit(relative=False), "relative": fit(), "slope": fit(slope=True)}
+    out = {}
+    for v, c in cs.items():
+        second = pgo.fuse_jit(pgo.rescale_observations(rv, c), cfg, valid=det, flip_prob=flip)
+        out[v] = (np.asarray(second.relative), np.asarray(c))
+    return out, np.asarray(kept)
 
 
 def main() -> None:
@@ -64,11 +61,11 @@ def main() -> None:
         gt, seen = scene.gt, scene.observed
         for key in ("ir_est", "iml_est"):
             est0 = np.array([r[key] for r in rows])
-            for v in VARIANTS:
-                est, c, inl = fused(rows, scene, key, v)
+            variants, kept = fused(rows, scene, key)
+            k = kept & seen
+            bias = float(np.mean(np.log(np.hypot(*est0[k, :2].T) / np.hypot(*gt[k, :2].T))))
+            for v, (est, c) in variants.items():
                 m = metrics.summarize(est[seen], gt[seen])
-                k = inl & seen
-                bias = float(np.mean(np.log(np.hypot(*est0[k, :2].T) / np.hypot(*gt[k, :2].T))))
                 out.append({"run": js, "estimates": key, "variant": v, "dx_cm": m["dx_cm"][0], "dy_cm": m["dy_cm"][0],
                             "ate": m["ate"], "c": c.tolist(), "bias": bias})
                 print(f"{Path(js).name:36s} {key:7s} {v:8s} dx {m['dx_cm'][0]:5.2f} dy {m['dy_cm'][0]:5.2f} "
