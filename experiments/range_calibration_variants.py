@@ -4,10 +4,11 @@ from the per-frame estimates `evaluate --modules iml,ir,pgo --json` stores (no n
   python experiments/range_calibration_variants.py --runs EVAL.json DATA [EVAL.json DATA ...] --out OUT.json
 
 For each run, and for the refined (`ir_est`) and the IML's (`iml_est`) estimates: the pipeline's
-batch fusion (fuse, calibrate, rescale, fuse again, as `pipeline.fuse_estimates`) with the range
-model varied: `off` (no calibration), `absolute` (every observation's x, y error alike: the
-pipeline's model until session 18), `relative` (the error a percentage of the range: the
-pipeline's default since), `slope` (relative, c_1 fitted too). Prints abs dx, dy (cm) and ATE of each, the estimates'
+batch fusion (`pgo.fuse_calibrated`: fuse, calibrate, rescale, fuse again, as
+`pipeline.fuse_estimates`) with the range model varied: `off` (no calibration), `absolute`
+(every observation's x, y error alike: the pipeline's model until session 18), `relative` (the
+error a percentage of the range: the pipeline's default since), `unguarded` (relative without
+the support guard: the pipeline until session 19), `slope` (relative, c_1 fitted too). Prints abs dx, dy (cm) and ATE of each, the estimates'
 true range bias (mean log est/true range over the fusion's inliers) and the fitted c_0.
 """
 
@@ -17,6 +18,7 @@ import argparse
 import json
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -26,8 +28,8 @@ from rhaml_jax.sequence import group_scenes, load_scene
 
 
 def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
-    """Every range-model variant's fused estimates (N, 3) and c (2,), and the first fusion's kept
-    rows (N,) bool, which every variant shares."""
+    """Every range-model variant's fused estimates (N, 3) and c (2,), and the uncalibrated
+    fusion's kept rows (N,) bool (those the fits start from)."""
     seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
@@ -35,14 +37,17 @@ def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
     cfg = pgo.FusionConfig()
     rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
     first = pgo.fuse_jit(rv, cfg, valid=det, flip_prob=flip)
-    kept = first.inlier & det
-    fit = lambda **kw: pgo.range_model(rv, first.odom_a_T_odom_b, kept.astype(jnp.float32), cfg.obs_sigma_xy_m, **kw)  # noqa: E731
-    cs = {"off": jnp.zeros(2), "absolute": fit(relative=False), "relative": fit(), "slope": fit(slope=True)}
-    out = {}
-    for v, c in cs.items():
-        second = pgo.fuse_jit(pgo.rescale_observations(rv, c), cfg, valid=det, flip_prob=flip)
-        out[v] = (np.asarray(second.relative), np.asarray(c))
-    return out, np.asarray(kept)
+    out = {"off": (np.asarray(first.relative), np.zeros(2))}
+    for v, kw in VARIANTS.items():
+        fusion, c = FUSE_CALIBRATED(rv, cfg, det, flip, **kw)
+        out[v] = (np.asarray(fusion.relative), np.asarray(c))
+    return out, np.asarray(first.inlier & det)
+
+
+# the pipeline runs "relative"; all but "unguarded" keep a calibration only with the support guard
+VARIANTS = {"absolute": dict(relative=False), "relative": dict(), "unguarded": dict(min_support=0.0),
+            "slope": dict(slope=True)}
+FUSE_CALIBRATED = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope"))
 
 
 def main() -> None:

@@ -59,7 +59,7 @@ class PipelineConfig:
     pgo_mode: Literal["batch", "online"] = "batch"
     fusion: pgo.FusionConfig = pgo.FusionConfig()
     chunk: int = 32  # frames per network call inside the traced function (bounds activation memory)
-    # batch pgo: calibrate the observations' range error from odometry (pgo.range_model), then
+    # batch pgo: calibrate the observations' range error from odometry (pgo.fuse_calibrated), then
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
     calibrate_range: bool = True
 
@@ -135,7 +135,7 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
 def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
     """The pgo module on its own: per-frame estimates (N,) with both odometries (N, 3) ->
     (pgo.FusionResult, range model c (2,)); batch mode fuses, calibrates the range error
-    (`pgo.range_model`) and fuses again, online mode fuses each frame from those before it."""
+    and fuses again (`pgo.fuse_calibrated`), online mode fuses each frame from those before it."""
     obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
     rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
     c = jnp.zeros((2,), est.xypsi.dtype)
@@ -146,15 +146,13 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
         # circle under one XLA compilation, not in another: an open numerical issue of fuse_online)
         ok = (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1)
         return fusion._replace(relative=jnp.where(ok[:, None], fusion.relative, est.xypsi)), c
-    fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    if cfg.calibrate_range:
+        fusion, c = pgo.fuse_calibrated(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    else:
+        fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry
     # frames undetermined (the fusion answers NaN): keep the stage's own estimates then
     ok = jnp.any(fusion.inlier & detected)
-    if cfg.calibrate_range:
-        used = (fusion.inlier & detected).astype(est.xypsi.dtype)
-        F = jnp.where(ok, fusion.odom_a_T_odom_b, 0.0)
-        c = jnp.where(ok, pgo.range_model(rv, F, used, cfg.fusion.obs_sigma_xy_m), 0.0)
-        fusion = pgo.fuse(pgo.rescale_observations(rv, c), cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     return fusion._replace(relative=jnp.where(ok, fusion.relative, est.xypsi)), c
 
 

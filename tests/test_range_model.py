@@ -1,5 +1,5 @@
-"""pgo.range_model: recovers a range scale that every observation shares, and refuses to
-calibrate on observations that carry no trajectory (a localiser that failed)."""
+"""pgo.range_model / fuse_calibrated: recover a range scale that every observation shares, and
+refuse to calibrate on observations that carry no trajectory (a localiser that failed)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from rhaml_jax import pgo
 from rhaml_jax.data import circle, noisy_odometry
 
 
-def _rendezvous(obs_xy, odom_b):
+def _rendezvous(obs_xy, odom_b, psi=None):
     n = len(obs_xy)
-    psi = np.zeros(n)
+    psi = np.zeros(n) if psi is None else psi
     obs = pgo.observation_from_xy_yaw_rp(jnp.asarray(np.c_[obs_xy, psi], jnp.float32))
     return pgo.rendezvous_from_frames(jnp.zeros((n, 3)), jnp.asarray(odom_b, jnp.float32), obs, jnp.ones(n, bool))
 
@@ -30,12 +30,43 @@ def test_recovers_a_shared_range_scale():
         np.testing.assert_allclose(np.asarray(fixed.observation[:, 4:6]), truth[:, :2], atol=0.12)
 
 
+def _fuse(xy, odom, psi=None):
+    return jax.jit(pgo.fuse_calibrated, static_argnames="cfg")(_rendezvous(xy, odom, psi), pgo.FusionConfig())
+
+
 def test_no_calibration_from_garbage():
-    truth = circle(200)
+    """A localiser stuck near one point: range_model's own checks pass a fit on the few rows the
+    fusion kept (c_0 about -10 %); fuse_calibrated refuses it, since the calibrated fusion still
+    keeps almost none of them."""
+    truth = circle(500)
     odom = noisy_odometry(truth, seed=3)
-    stuck = np.tile([[6.2, 4.2]], (200, 1)) + np.random.default_rng(1).normal(0, 0.3, (200, 2))
-    c = jax.jit(pgo.range_model)(_rendezvous(stuck, odom), jnp.zeros(3), jnp.ones(200))
-    assert bool(jnp.all(jnp.isfinite(c))) and abs(float(c[0])) <= 0.3
+    stuck = np.tile([[6.2, 4.2]], (500, 1)) + np.random.default_rng(1).normal(0, 0.3, (500, 2))
+    rv = _rendezvous(stuck, odom)
+    first = pgo.fuse_jit(rv, pgo.FusionConfig())
+    c_fit = pgo.range_model(rv, first.odom_a_T_odom_b, first.inlier.astype(jnp.float32))
+    assert bool(jnp.all(jnp.isfinite(c_fit))) and abs(float(c_fit[0])) > 0.02  # the fit alone is fooled
+    fusion, c = _fuse(stuck, odom)
+    assert float(jnp.mean(fusion.inlier)) < pgo.MIN_SUPPORT
+    np.testing.assert_array_equal(np.asarray(c), 0.0)
+    np.testing.assert_allclose(np.asarray(fusion.relative), np.asarray(first.relative), atol=1e-5)
+
+
+def test_calibrates_a_biased_localiser_and_half_garbage():
+    """Ranges read 20 % long: the uncalibrated fusion keeps under half the rows, the calibrated one
+    nearly all, and c_0 is found; with every other frame garbage, the consistent half calibrates."""
+    truth = circle(500)
+    odom = noisy_odometry(truth, seed=3)
+    rng = np.random.default_rng(0)
+    long = truth[:, :2] * 1.2 + rng.normal(0, 0.03, (500, 2))
+    psi = truth[:, 2]
+    assert float(jnp.mean(pgo.fuse_jit(_rendezvous(long, odom, psi), pgo.FusionConfig()).inlier)) < 0.5
+    fusion, c = _fuse(long, odom, psi)
+    assert float(jnp.mean(fusion.inlier)) > 0.95 and abs(float(c[0]) - np.log(1.2)) < 0.03
+    half = truth[:, :2] * 1.05 + rng.normal(0, 0.05, (500, 2))
+    half[::2] = np.tile([[6.2, 4.2]], (250, 1)) + rng.normal(0, 0.3, (250, 2))
+    fusion, c = _fuse(half, odom, psi)
+    assert abs(float(c[0]) - np.log(1.05)) < 0.01
+    np.testing.assert_allclose(np.asarray(fusion.relative[1::2, :2]), truth[1::2, :2], atol=0.15)
 
 
 def test_relative_errors_weight_each_observation_by_its_range():

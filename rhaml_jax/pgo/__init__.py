@@ -16,6 +16,8 @@ Public API:
   `fuse_online_jit` (row k from rendezvous <= k), `fusion_graph` (the graph GNC sees, host side;
   `gtsam_gnc` hands it to GTSAM's GncOptimizer, the reference),
   `odometry_information`, `rendezvous_from_frames` (per-frame arrays -> Rendezvous);
+  range calibration from odometry: `range_model`, `rescale_observations`, and `fuse_calibrated`
+  (fuse, calibrate, fuse again, kept only if the calibrated fusion keeps `MIN_SUPPORT` of the rows);
   simulators `simulate_static_observer`, `simulate_two_robots` (`FusionSequence`).
 """
 
@@ -49,14 +51,14 @@ from ._rhaml_graph import (
     rhaml_pgo_jit,
     rhaml_pose_graph,
 )
-from ._scale import RANGE_R0_M, range_model, rescale_observations
+from ._scale import MIN_SUPPORT, RANGE_R0_M, fuse_calibrated, range_model, rescale_observations
 from ._simulate import simulate_rendezvous
 from ._solver import graph_cost, optimize
 from ._types import PoseGraph, SolverConfig, SolveResult
 from ._validate import validate_graph
 
 __all__ = [
-    "RANGE_R0_M", "range_model", "rescale_observations", "simulate_rendezvous",
+    "MIN_SUPPORT", "RANGE_R0_M", "fuse_calibrated", "range_model", "rescale_observations", "simulate_rendezvous",
     "PoseGraph", "SolverConfig", "SolveResult",
     "read_g2o", "write_g2o", "parse_g2o", "format_g2o", "validate_graph",
     "optimize", "graph_cost", "chordal_initialization",
