@@ -4,13 +4,17 @@
   python -m rhaml_jax.generate --out DIR --scenario circle|sine|rendezvous [--frames 500]
   python -m rhaml_jax.generate --out DIR --heldout [--frames 500 --num 500 --negatives 100]
   python -m rhaml_jax.generate --out DIR --heldout --scenario rendezvous [--frames 200]
+  python -m rhaml_jax.generate --out DIR --ood-validation --seed 1 [--frames 500 --num 500 --negatives 100]
 
 Training sets use the v2 appearance randomisation (`--appearance v2`, ranges in
 `rhaml_jax.data.AppearanceConfig`, each settable as `--ranges.FIELD LO HI`); `--appearance v1`
 writes the data the shipped checkpoints were trained on. `--heldout` writes the held-out
 appearance benchmark (DIR/circle, DIR/sine, DIR/background, DIR/random), rendered with settings
 outside every training range (`rhaml_jax.data.HeldoutConfig`): a hemisphere light, teal robot
-parts, Voronoi and `stereo_motorcycle` rooms. Scenarios keep the v1 look.
+parts, Voronoi and `stereo_motorcycle` rooms. `--ood-validation` writes a set of the same kind
+whose settings lie outside training's and apart from the held-out set's
+(`rhaml_jax.data.OOD_VALIDATION`: ceiling lamps, the robot's own colours made glossy, hexagon-tiled
+and `retina` rooms), for the choices the held-out set must not make. Scenarios keep the v1 look.
 
 Every image is a pure function of (seed, index): running the same command again writes the
 same bytes, so an interrupted run is simply run again.
@@ -48,6 +52,8 @@ class Args:
     """Training-set look: v2 (appearance randomisation) or v1 (the shipped checkpoints' data)."""
     heldout: bool = False
     """Write the held-out appearance benchmark (circle, sine, background, random) instead."""
+    ood_validation: bool = False
+    """Write the out-of-distribution validation set instead (the same four parts; `rhaml_jax.data.OOD_VALIDATION`: outside --ranges and apart from --heldout-ranges): choose designs, thresholds and checkpoints on it, not on the held-out set."""
     ranges: AppearanceConfig = AppearanceConfig()
     """v2 appearance ranges (training; also what --heldout checks its settings against)."""
     heldout_ranges: HeldoutConfig = HeldoutConfig()
@@ -69,20 +75,28 @@ class Args:
 
 
 def generate(args: Args) -> dict:
-    from rhaml_jax.data import SynthConfig, check_heldout, write_heldout, write_scenario, write_training_set
+    from rhaml_jax.data import (OOD_VALIDATION, SynthConfig, check_apart, check_heldout, write_heldout, write_scenario,
+                                write_training_set)
 
-    num = args.num if args.num is not None else 500 if args.heldout else 70000
-    negatives = args.negatives if args.negatives is not None else 100 if args.heldout else 10000
-    if num < 0 or negatives < 0 or (num + negatives == 0 and not args.heldout):
+    ood = args.heldout or args.ood_validation
+    flag = "--ood-validation" if args.ood_validation else "--heldout"
+    num = args.num if args.num is not None else 500 if ood else 70000
+    negatives = args.negatives if args.negatives is not None else 100 if ood else 10000
+    if num < 0 or negatives < 0 or (num + negatives == 0 and not ood):
         raise RhamlError(f"--num and --negatives must be >= 0 and not both 0, got {num}, {negatives}")
-    if args.heldout and args.scenario in ("circle", "sine"):
-        raise RhamlError("--heldout writes its own circle and sine scenarios: drop --scenario "
-                         "(--heldout --scenario rendezvous writes a held-out two-robot sequence)")
-    if args.heldout and args.appearance != "v2":
-        raise RhamlError("--heldout: its settings are checked against the v2 training ranges; drop --appearance v1")
+    if args.heldout and args.ood_validation:
+        raise RhamlError("--heldout and --ood-validation: choose one (each writes its own set)")
+    if ood and args.scenario in ("circle", "sine"):
+        raise RhamlError(f"{flag} writes its own circle and sine scenarios: drop --scenario "
+                         f"({flag} --scenario rendezvous writes a two-robot sequence in that look)")
+    if ood and args.appearance != "v2":
+        raise RhamlError(f"{flag}: its settings are checked against the v2 training ranges; drop --appearance v1")
     args.ranges.validate(), args.heldout_ranges.validate()  # (parsed with the checks deferred)
-    if args.heldout:
-        check_heldout(args.ranges, args.heldout_ranges)  # before any rendering
+    held = OOD_VALIDATION if args.ood_validation else args.heldout_ranges
+    if ood:  # before any rendering
+        check_heldout(args.ranges, held)
+    if args.ood_validation:
+        check_apart(held, args.heldout_ranges)
     if args.workers < 1:
         raise RhamlError(f"--workers must be at least 1, got {args.workers}")
     if args.width < 16 or args.height < 16:
@@ -93,12 +107,12 @@ def generate(args: Args) -> dict:
     camera = DEFAULT_CAMERA if (args.width, args.height) == (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height) else DEFAULT_CAMERA.resized(args.width, args.height)
     assert isinstance(camera, Camera)
     t = time.perf_counter()
-    if args.heldout and args.scenario == "rendezvous":
+    if ood and args.scenario == "rendezvous":
         out = write_scenario(args.out, "rendezvous", args.robot, camera, args.seed, args.frames, args.workers,
-                             max_faces=args.max_faces, heldout=args.heldout_ranges, scale=args.scale)
-    elif args.heldout:
+                             max_faces=args.max_faces, heldout=held, scale=args.scale)
+    elif ood:
         out = write_heldout(args.out, args.robot, camera, args.seed, args.frames, num, negatives, args.workers, args.max_faces,
-                            args.heldout_ranges, args.ranges, args.scale)
+                            held, args.ranges, args.scale)
     elif args.scenario is not None:
         out = write_scenario(args.out, args.scenario, args.robot, camera, args.seed, args.frames, args.workers, max_faces=args.max_faces,
                              scale=args.scale)

@@ -1,6 +1,7 @@
-"""Appearance randomisation (data v2) and the held-out appearance benchmark: every factor is a
-pure function of (seed, index) inside its documented range; the held-out settings never occur
-in training draws; bad ranges and overlapping held-out settings fail with one line (exit 2)."""
+"""Appearance randomisation (data v2), the held-out appearance benchmark and the OOD validation
+set: every factor is a pure function of (seed, index) inside its documented range; the held-out
+and validation settings never occur in training draws, nor the validation's in held-out draws;
+bad ranges and overlapping settings fail with one line (exit 2)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import pytest
 
 from rhaml_jax import data
 from rhaml_jax.camera import DEFAULT_CAMERA
-from rhaml_jax.data._appearance import TRAINING_LIGHTING, color_groups
+from rhaml_jax.data._appearance import TRAINING_LIGHTING, color_groups, rgb_to_hsv
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.render import as_mesh
 from rhaml_jax.robots import load_robot
@@ -111,6 +112,44 @@ def test_heldout_settings_never_occur_in_training():
     assert any(np.any(lk.part_hsv[-2:, 1] > 0.5) for lk in train)
 
 
+def test_ood_validation_settings_are_outside_training_and_apart_from_the_heldout_set():
+    """OOD_VALIDATION's looks are what it says (ceiling lamps of saturation 0.7-0.9, the robot's own
+    colours with highlights outside training's, hexagon and `retina` rooms); no training draw and
+    no held-out draw has any of them."""
+    V = data.OOD_VALIDATION
+    data.check_heldout(CFG, V), data.check_apart(V, HELD)
+    val = [data.sample_heldout_look(V, s, i, GROUPS) for s in (0, 1) for i in range(200)]
+    assert _same(val[207], data.sample_heldout_look(V, 1, 7, GROUPS))  # pure in (seed, index)
+    for lk in val:
+        assert lk.lighting == "lamps" and 2 <= len(lk.lamp_pos) <= 3 and np.all(lk.lamp_pos[:, 2] >= 2.4)
+        assert all(_inside(_light(c)[1], V.light_saturation, 1e-6) and _inside(_light(c)[0], V.lamp, 1e-6) for c in lk.lamp_rgb)
+        np.testing.assert_allclose(lk.part_hsv, rgb_to_hsv(GROUPS))  # its own colours
+        assert _inside(lk.specular, V.specular) and _inside(lk.shininess, V.shininess, 1e-6)
+        assert all(t.kind in V.texture_kinds and (t.kind != "photo" or t.photo in V.texture_photos) for t in lk.textures)
+        assert lk.backdrop_photo in V.backdrop_photos
+    assert {t.kind for lk in val for t in lk.textures} == set(V.texture_kinds)
+    train = _looks(3, N_DRAWS // 2)
+    held = [data.sample_heldout_look(HELD, 0, i, GROUPS) for i in range(200)]
+    for lk in train + held:
+        assert lk.lighting != "lamps" and len(lk.lamp_pos) == 0
+        assert lk.specular < V.specular[0] and lk.shininess < V.shininess[0]
+        assert all(_light(c)[1] < V.light_saturation[0] for c in (lk.ambient_rgb, lk.sun_rgb, lk.flash_rgb, lk.sky_rgb, lk.ground_rgb))
+        assert not any(t.kind == "hexagons" or t.photo in V.texture_photos for t in lk.textures)
+        assert lk.backdrop_photo not in V.backdrop_photos
+
+
+@pytest.mark.parametrize("change,msg", [
+    ({"lighting": "hemisphere"}, "OOD_VALIDATION.lighting and HeldoutConfig.lighting: both 'hemisphere'"),
+    ({"light_saturation": (0.6, 0.9)}, "OOD_VALIDATION.light_saturation"),
+    ({"texture_kinds": ("hexagons", "voronoi")}, "OOD_VALIDATION.texture_kinds and HeldoutConfig.texture_kinds: ['voronoi'] in both"),
+    ({"backdrop_photos": ("retina", "stereo_motorcycle")}, "['stereo_motorcycle'] in both"),
+])
+def test_a_validation_set_that_previews_the_heldout_set_is_rejected(change, msg):
+    with pytest.raises(RhamlError) as e:
+        data.check_apart(dataclasses.replace(data.OOD_VALIDATION, **change), HELD)
+    assert msg in str(e.value) and "\n" not in str(e.value)
+
+
 def test_repaint_recolours_every_part_outside_the_heldout_band():
     """repaint_prob = 1: no part keeps its own colour (hue within part_hue_shift_deg of its
     own, saturation >= part_saturation_scale[0] of its own) more often than a random new colour
@@ -165,6 +204,8 @@ def test_heldout_overlapping_training_is_rejected(train, held, msg):
 @pytest.mark.parametrize("flags,msg", [
     (["--ranges.gamma", "1.2", "0.9"], "AppearanceConfig.gamma: range (1.2, 0.9) is inverted"),
     (["--heldout", "--heldout-ranges.part-hue-deg", "100", "180"], "HeldoutConfig.part_hue_deg"),
+    (["--ood-validation", "--heldout-ranges.texture-kinds", "hexagons"], "['hexagons'] in both"),
+    (["--ood-validation", "--heldout"], "--heldout and --ood-validation: choose one"),
 ])
 def test_generate_rejects_bad_appearance_with_exit_2(tmp_path, flags, msg):
     r = subprocess.run([sys.executable, "-m", "rhaml_jax.generate", "--out", str(tmp_path / "x"), *flags],

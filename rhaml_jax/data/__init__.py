@@ -9,7 +9,9 @@
   `mix_sets`: several training sets of one robot as one (symlinks).
 - `AppearanceConfig`: the v2 appearance randomisation's factors and ranges (`SynthConfig.appearance`;
   None gives the v1 data); `HeldoutConfig`, `check_heldout`, `write_heldout`: the held-out
-  appearance benchmark, outside every training range; `sample_look`, `sample_heldout_look`: one
+  appearance benchmark, outside every training range; `OOD_VALIDATION`, `check_apart`: the
+  out-of-distribution validation set's settings (`write_heldout(..., heldout=OOD_VALIDATION)`),
+  outside training and apart from the held-out set; `sample_look`, `sample_heldout_look`: one
   image's look (a pure function of (seed, index)).
 """
 
@@ -35,11 +37,11 @@ from rhaml_jax.data._cache import ImageCache  # noqa: E402
 __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTheFly", "amlnet_batch_source", "make_batch_fn",
             "network_image"]
 
-from rhaml_jax.data._appearance import (AppearanceConfig, HeldoutConfig, Look, check_heldout,  # noqa: E402
-                                        deferred_checks, sample_heldout_look, sample_look)
+from rhaml_jax.data._appearance import (OOD_VALIDATION, AppearanceConfig, HeldoutConfig, Look, check_apart,  # noqa: E402
+                                        check_heldout, deferred_checks, sample_heldout_look, sample_look)
 from rhaml_jax.data._writer import write_heldout  # noqa: E402
 
-__all__ += ["AppearanceConfig", "HeldoutConfig", "Look", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "write_heldout"]
+__all__ += ["OOD_VALIDATION", "AppearanceConfig", "HeldoutConfig", "Look", "check_apart", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "write_heldout"]
 
 from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
 

@@ -14,6 +14,18 @@ place; `HeldoutConfig` lists the held-out benchmark's settings, chosen OUTSIDE t
 
 The held-out camera effects are training's, milder (`MILD_CAMERA`): they are not held out.
 
+`OOD_VALIDATION` is a second set of the same kind for choosing designs, thresholds and
+checkpoints (the held-out set may only be reported): its settings lie outside training's AND
+apart from the held-out set's (`check_apart`), so that a choice that transfers to it is likely to
+transfer to looks nobody has seen:
+
+- lighting model "lamps": two or three ceiling lamps (point lights 2.4-3.2 m up, anywhere from
+  2 m behind to 8 m ahead of the camera, inverse-square falloff) over a dim ambient, strongly
+  coloured (saturation 0.7-0.9);
+- robot material: its own colours, glossy (highlights of strength 1-2, exponent 256-1024;
+  training's at most 0.5 and 128, the held-out set's none);
+- texture family: rooms of hexagonal tiles (`hexagons`) and the `retina` photograph.
+
 Everything sampled here is a pure function of (seed, index): `sample_look` draws from its own
 stream, independent of the geometry's, so the factors of an image can be listed without
 rendering it (what the tests do). Host-side NumPy / OpenCV only.
@@ -36,6 +48,7 @@ from rhaml_jax.errors import RhamlError
 Range = tuple[float, float]
 
 TRAINING_LIGHTING = ("sun", "sun+flash")  # what v2 training samples
+OOD_LIGHTING = ("hemisphere", "lamps")  # models for out-of-training sets only
 _STREAM_LOOK, _STREAM_HELDOUT = 0x4C4F4F4B, 0x48454C44  # independent SeedSequence streams
 _DEFERRED = [False]
 
@@ -160,8 +173,11 @@ class HeldoutConfig:
     every training range (`check_heldout`).
 
     lighting: "hemisphere": sky light of strength sky from above, ground light of strength ground
-      from below, blended by the surface normal's up component; both coloured with saturation
-      light_saturation. part_hue_deg, part_saturation, part_value: every robot part's colour.
+      from below, blended by the surface normal's up component; "lamps": n_lamps ceiling point
+      lights of strength lamp (at 3 m) over an ambient of strength ambient. Both coloured with
+      saturation light_saturation. part_hue_deg, part_saturation, part_value: every robot part's
+      colour (part_hue_deg None: the robot's own colours). specular, shininess: the robot's
+      highlights (0: none).
     texture_kinds: room surfaces ("photo" means one of texture_photos); backdrop_photos:
     photograph backdrops. camera: the camera effects' ranges (not held out: `MILD_CAMERA`, a
     typical camera inside the training ranges, so that a scenario's single draw of its camera
@@ -171,10 +187,15 @@ class HeldoutConfig:
     lighting: str = "hemisphere"
     sky: Range = (0.7, 1.2)
     ground: Range = (0.15, 0.4)
+    n_lamps: Range = (2.0, 3.0)
+    lamp: Range = (0.5, 1.0)
+    ambient: Range = (0.05, 0.15)
     light_saturation: Range = (0.45, 0.65)
-    part_hue_deg: Range = (165.0, 195.0)
+    part_hue_deg: Range | None = (165.0, 195.0)
     part_saturation: Range = (0.45, 0.9)
     part_value: Range = (0.25, 0.85)
+    specular: Range = (0.0, 0.0)
+    shininess: Range = (1.0, 1.0)
     texture_kinds: tuple[str, ...] = ("voronoi", "photo")
     texture_photos: tuple[str, ...] = ("stereo_motorcycle",)
     backdrop_photos: tuple[str, ...] = ("stereo_motorcycle",)
@@ -186,17 +207,19 @@ class HeldoutConfig:
 
     def validate(self) -> None:
         """RhamlError (one line naming the field) for an empty, inverted or out-of-bounds setting."""
-        if self.lighting != "hemisphere" and self.lighting not in TRAINING_LIGHTING:
-            raise RhamlError(f"HeldoutConfig.lighting: unknown lighting model {self.lighting!r} (hemisphere, {', '.join(TRAINING_LIGHTING)})")
+        if self.lighting not in OOD_LIGHTING and self.lighting not in TRAINING_LIGHTING:
+            raise RhamlError(f"HeldoutConfig.lighting: unknown lighting model {self.lighting!r} "
+                             f"({', '.join(OOD_LIGHTING + TRAINING_LIGHTING)})")
         self.camera.validate()
-        _check_fields(self, {"sky": (0, None), "ground": (0, None), "light_saturation": (0, 1), "part_hue_deg": (0, 360),
-                             "part_saturation": (0, 1), "part_value": (0, 1)})
+        _check_fields(self, {"sky": (0, None), "ground": (0, None), "n_lamps": (1, 8), "lamp": (0, None), "ambient": (0, None),
+                             "light_saturation": (0, 1), "part_hue_deg": (0, 360), "part_saturation": (0, 1), "part_value": (0, 1),
+                             "specular": (0, None), "shininess": (1, None)})
         unknown = [k for k in self.texture_kinds if k not in _KNOWN_KINDS]
         if unknown:
             raise RhamlError(f"HeldoutConfig.texture_kinds: unknown texture kind(s) {unknown} (known: {', '.join(_KNOWN_KINDS)})")
 
 
-_KNOWN_KINDS = ("solid", "checker", "stripes", "tiles", "noise", "photo", "wood", "dots", "marble", "voronoi")
+_KNOWN_KINDS = ("solid", "checker", "stripes", "tiles", "noise", "photo", "wood", "dots", "marble", "voronoi", "hexagons")
 
 
 def _check_fields(cfg, bounds: dict) -> None:
@@ -208,7 +231,9 @@ def _check_fields(cfg, bounds: dict) -> None:
         if f.name.endswith("_prob") or f.name == "exclude_min_saturation":
             if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
                 raise RhamlError(f"{name}.{f.name}: {v!r} is not a probability in [0, 1]")
-        elif f.type in ("Range", Range):
+        elif f.type in ("Range | None",) and v is None:
+            continue
+        elif f.type in ("Range", Range, "Range | None"):
             if not (isinstance(v, (tuple, list)) and len(v) == 2 and all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)):
                 raise RhamlError(f"{name}.{f.name}: expected a range (lo, hi) of two finite numbers, got {v!r}")
             lo, hi = v
@@ -233,12 +258,16 @@ def check_heldout(train: AppearanceConfig, held: HeldoutConfig) -> None:
     if _overlap(held.light_saturation, train.light_saturation):
         raise RhamlError(f"HeldoutConfig.light_saturation: {held.light_saturation} overlaps training's {train.light_saturation}")
     lo, hi = train.hue_exclude_deg
-    if not (lo <= held.part_hue_deg[0] and held.part_hue_deg[1] <= hi):
+    if held.part_hue_deg is not None and not (lo <= held.part_hue_deg[0] and held.part_hue_deg[1] <= hi):
         raise RhamlError(f"HeldoutConfig.part_hue_deg: {held.part_hue_deg} is not inside the band training never samples "
                          f"(AppearanceConfig.hue_exclude_deg {train.hue_exclude_deg})")
-    if held.part_saturation[0] < train.exclude_min_saturation:
+    if held.part_hue_deg is not None and held.part_saturation[0] < train.exclude_min_saturation:
         raise RhamlError(f"HeldoutConfig.part_saturation: {held.part_saturation} reaches below "
                          f"AppearanceConfig.exclude_min_saturation {train.exclude_min_saturation}, where training samples every hue")
+    if held.specular[1] > 0:  # highlights are a held-out factor only outside training's material
+        for field in ("specular", "shininess"):
+            if _overlap(getattr(held, field), getattr(train, field)):
+                raise RhamlError(f"HeldoutConfig.{field}: {getattr(held, field)} overlaps training's {getattr(train, field)}")
     both = sorted(set(held.texture_kinds) - {"photo"} & set(train.texture_kinds))
     if both:
         raise RhamlError(f"HeldoutConfig.texture_kinds: {both} also in AppearanceConfig.texture_kinds")
@@ -249,6 +278,29 @@ def check_heldout(train: AppearanceConfig, held: HeldoutConfig) -> None:
             raise RhamlError(f"HeldoutConfig.{field}: {both} also sampled by training (texture_photos or backdrop_photos)")
 
 
+def check_apart(a: HeldoutConfig, b: HeldoutConfig, names=("OOD_VALIDATION", "HeldoutConfig")) -> None:
+    """RhamlError (one line) unless two out-of-training sets share no lighting model, light
+    saturation, robot colouring, material, texture family or photograph (a validation set must
+    not preview the held-out set)."""
+    def fail(field, why):
+        raise RhamlError(f"{names[0]}.{field} and {names[1]}.{field}: {why}; the two sets must be apart")
+
+    if a.lighting == b.lighting:
+        fail("lighting", f"both {a.lighting!r}")
+    if _overlap(a.light_saturation, b.light_saturation):
+        fail("light_saturation", f"{a.light_saturation} overlaps {b.light_saturation}")
+    if a.part_hue_deg is not None and b.part_hue_deg is not None and _overlap(a.part_hue_deg, b.part_hue_deg):
+        fail("part_hue_deg", f"{a.part_hue_deg} overlaps {b.part_hue_deg}")
+    if a.specular[1] > 0 and b.specular[1] > 0 and _overlap(a.specular, b.specular):
+        fail("specular", f"{a.specular} overlaps {b.specular}")
+    kinds = sorted(set(a.texture_kinds) & set(b.texture_kinds) - {"photo"})
+    if kinds:
+        fail("texture_kinds", f"{kinds} in both")
+    photos = sorted((set(a.texture_photos) | set(a.backdrop_photos)) & (set(b.texture_photos) | set(b.backdrop_photos)))
+    if photos:
+        fail("texture_photos", f"{photos} in both")
+
+
 # ----------------------------------------------------------------------------- one image's look
 
 
@@ -257,7 +309,7 @@ class Look:
     """The appearance of one image (or one scenario): concrete values, not ranges.
 
     part_hsv: (G, 3) hue (deg), saturation, value of each colour group (see `color_groups`);
-    lighting: a TRAINING_LIGHTING model or "hemisphere"; *_rgb: (3,) light colour x strength;
+    lighting: a TRAINING_LIGHTING or OOD_LIGHTING model; *_rgb: (3,) light colour x strength;
     sun_dir: (3,) towards the sun, observer's robot frame; flash_offset: (3,) point light's
     offset from the camera, robot frame (m); textures: the room's six; backdrop_photo: the
     photograph a photo backdrop shows; distractor_hsv: (slots, 2, 3) body and wheel colours.
@@ -291,6 +343,8 @@ class Look:
     textures: tuple[Texture, ...]
     backdrop_photo: str
     distractor_hsv: np.ndarray
+    lamp_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # (L, 3) world (m)
+    lamp_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # (L, 3) at 3 m
 
     @property
     def part_rgb(self) -> np.ndarray:
@@ -401,12 +455,12 @@ def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors:
     held.camera's ranges). A pure function of its arguments."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _STREAM_HELDOUT]))
     G = len(base_colors)
-    part = np.stack([rng.uniform(*held.part_hue_deg, G), rng.uniform(*held.part_saturation, G), rng.uniform(*held.part_value, G)], 1)
+    part = np.stack([rng.uniform(*(held.part_hue_deg or (0.0, 360.0)), G), rng.uniform(*held.part_saturation, G), rng.uniform(*held.part_value, G)], 1)
     sky_hue = rng.uniform(0, 360)
     sky = hsv_to_rgb(np.array([sky_hue, _u(rng, held.light_saturation), 1.0])) * _u(rng, held.sky)
     ground = hsv_to_rgb(np.array([(sky_hue + rng.uniform(90, 270)) % 360, _u(rng, held.light_saturation), 1.0])) * _u(rng, held.ground)
     zero = np.zeros(3)
-    return Look(
+    look = Look(
         part_hsv=part, lighting=held.lighting, ambient_rgb=zero, sun_rgb=zero, sun_dir=np.array([0.0, 0.0, 1.0]), flash_rgb=zero,
         flash_offset=zero, flash_falloff=0.0, specular=0.0, shininess=1.0, sky_rgb=sky, ground_rgb=ground,
         shadow_strength=0.0, shadow_blur_px=1.0, contact_strength=float(rng.uniform(0.2, 0.5)),
@@ -415,6 +469,18 @@ def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors:
         backdrop_photo=held.backdrop_photos[rng.integers(len(held.backdrop_photos))],
         distractor_hsv=np.stack([rgb_to_hsv(rng.uniform(0.05, 0.95, (2, 3))) for _ in range(slots)]),
     )
+    # drawn after the held-out set's own draws, which stay as they were
+    extra = {}
+    if held.part_hue_deg is None:
+        extra["part_hsv"] = rgb_to_hsv(base_colors)
+    if held.specular[1] > 0:
+        extra.update(specular=_u(rng, held.specular), shininess=float(np.exp(rng.uniform(*np.log(held.shininess)))))
+    if held.lighting == "lamps":
+        n = int(rng.integers(round(held.n_lamps[0]), round(held.n_lamps[1]) + 1))
+        extra.update(ambient_rgb=np.full(3, _u(rng, held.ambient)), sky_rgb=zero, ground_rgb=zero,
+                     lamp_pos=np.stack([rng.uniform(-2.0, 8.0, n), rng.uniform(-4.0, 4.0, n), rng.uniform(2.4, 3.2, n)], 1),
+                     lamp_rgb=np.stack([_light_rgb(rng, held.light_saturation, _u(rng, held.lamp)) for _ in range(n)]))
+    return dataclasses.replace(look, **extra)
 
 
 # ----------------------------------------------------------------------------- shading
@@ -426,6 +492,19 @@ def _lights(look: Look, points, normals, cam_pos, view_dir=None):
     if look.lighting == "hemisphere":
         up = normals[:, 2:3]
         return look.sky_rgb * (1 + up) / 2 + look.ground_rgb * (1 - up) / 2, np.zeros_like(points)
+    if look.lighting == "lamps":  # lamp positions are relative to the camera's, height absolute
+        diffuse, spec = np.broadcast_to(look.ambient_rgb, points.shape).copy(), np.zeros_like(points)
+        for pos, rgb in zip(look.lamp_pos, look.lamp_rgb):
+            to = np.array([cam_pos[0] + pos[0], cam_pos[1] + pos[1], pos[2]]) - points
+            d = np.maximum(np.linalg.norm(to, axis=1, keepdims=True), 1e-3)  # guard: a point at the lamp
+            ld, fall = to / d, np.minimum((3.0 / d) ** 2, 4.0)
+            nl = np.maximum((normals * ld).sum(1, keepdims=True), 0.0)
+            diffuse += rgb * fall * nl
+            if view_dir is not None and look.specular > 0:
+                hv = ld + view_dir
+                hv /= np.maximum(np.linalg.norm(hv, axis=1, keepdims=True), 1e-9)  # guard: lamp opposite the eye
+                spec += rgb * fall * (nl > 0) * np.maximum((normals * hv).sum(1, keepdims=True), 0.0) ** look.shininess
+        return diffuse, spec * look.specular
     ndl = np.maximum(normals @ look.sun_dir, 0.0)[:, None]
     diffuse = look.ambient_rgb + look.sun_rgb * ndl
     spec = np.zeros_like(points)
@@ -531,3 +610,9 @@ def world_from_optical(camera_height: float, observer_xypsi=(0.0, 0.0, 0.0)):
 
 
 MILD_CAMERA.validate()
+
+OOD_VALIDATION = HeldoutConfig(lighting="lamps", light_saturation=(0.7, 0.9), part_hue_deg=None, specular=(1.0, 2.0),
+                               shininess=(256.0, 1024.0), texture_kinds=("hexagons", "photo"), texture_photos=("retina",),
+                               backdrop_photos=("retina",))
+"""The out-of-distribution validation set's settings (module docstring): outside training's
+ranges and apart from the held-out set's; choices are made on it, never on the held-out set."""

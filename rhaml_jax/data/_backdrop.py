@@ -82,7 +82,8 @@ def photo(rng: np.random.Generator, width: int, height: int, names: tuple[str, .
 class Texture:
     """A procedural texture over surface coordinates (s, t) in metres.
 
-    kind: solid | checker | stripes | tiles | noise | photo; colors: (2, 3) in [0, 1];
+    kind: solid | checker | stripes | tiles | noise | photo | wood | dots | marble | voronoi |
+    hexagons; colors: (2, 3) in [0, 1];
     period: pattern size (m); angle: stripe direction (rad); photo: scikit-image name;
     seed: for the noise lattice.
     """
@@ -139,6 +140,21 @@ class Texture:
                     d = (i0 + di + site[i, j, 0] - gs) ** 2 + (j0 + dj + site[i, j, 1] - gt) ** 2
                     closer = d < best
                     best, w = np.where(closer, d, best), np.where(closer, mix[i, j], w)
+        elif self.kind == "hexagons":  # hexagonal tiles of `period` m, one colour mix per tile, dark grout
+            x, y = s / p, t / p
+            q, r = 2.0 / 3.0 * x, -1.0 / 3.0 * x + np.sqrt(3.0) / 3.0 * y  # axial coordinates (flat-top)
+            cube = np.stack([q, -q - r, r])
+            rc = np.round(cube)
+            err = np.abs(rc - cube)  # cube rounding: fix the coordinate that rounded worst
+            worst = np.argmax(err, axis=0)
+            for k in range(3):
+                others = [j for j in range(3) if j != k]
+                rc[k] = np.where(worst == k, -rc[others[0]] - rc[others[1]], rc[k])
+            mix = np.random.default_rng(self.seed).random((64, 64)).astype(np.float32)
+            w = mix[rc[0].astype(np.int64) % 64, rc[2].astype(np.int64) % 64]
+            d = cube - rc
+            edge = np.max(np.abs(d - np.roll(d, 1, axis=0)), axis=0)  # 0 at a tile's centre, 1 on its rim
+            w = np.where(edge > 0.88, 0.0, w).astype(np.float32)
         elif self.kind == "photo":
             img = _skimage(self.photo)
             h, w_ = img.shape[:2]
