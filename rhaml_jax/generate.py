@@ -13,7 +13,7 @@ appearance benchmark (DIR/circle, DIR/sine, DIR/background, DIR/random), rendere
 outside every training range (`rhaml_jax.data.HeldoutConfig`): a hemisphere light, teal robot
 parts, Voronoi and `stereo_motorcycle` rooms. `--ood-validation` writes a set of the same kind
 whose settings lie outside training's and apart from the held-out set's
-(`rhaml_jax.data.OOD_VALIDATION`: ceiling lamps, the robot's own colours made glossy, hexagon-tiled
+(`rhaml_jax.data.OOD_VALIDATION`: ceiling lamps, a checker livery over the robot's own glossy colours, hexagon-tiled
 and `retina` rooms), for the choices the held-out set must not make. Scenarios keep the v1 look.
 
 Every image is a pure function of (seed, index): running the same command again writes the

@@ -114,8 +114,8 @@ def test_heldout_settings_never_occur_in_training():
 
 def test_ood_validation_settings_are_outside_training_and_apart_from_the_heldout_set():
     """OOD_VALIDATION's looks are what it says (ceiling lamps of saturation 0.7-0.9, the robot's own
-    colours with highlights outside training's, hexagon and `retina` rooms); no training draw and
-    no held-out draw has any of them."""
+    colours under a grey checker livery, highlights outside training's, hexagon and `retina`
+    rooms); no training draw and no held-out draw has any of them."""
     V = data.OOD_VALIDATION
     data.check_heldout(CFG, V), data.check_apart(V, HELD)
     val = [data.sample_heldout_look(V, s, i, GROUPS) for s in (0, 1) for i in range(200)]
@@ -125,17 +125,42 @@ def test_ood_validation_settings_are_outside_training_and_apart_from_the_heldout
         assert all(_inside(_light(c)[1], V.light_saturation, 1e-6) and _inside(_light(c)[0], V.lamp, 1e-6) for c in lk.lamp_rgb)
         np.testing.assert_allclose(lk.part_hsv, rgb_to_hsv(GROUPS))  # its own colours
         assert _inside(lk.specular, V.specular) and _inside(lk.shininess, V.shininess, 1e-6)
+        assert _inside(lk.livery_period, V.livery_period_m) and np.ptp(lk.livery_rgb) == 0 and _inside(lk.livery_rgb[0], V.livery_value)
         assert all(t.kind in V.texture_kinds and (t.kind != "photo" or t.photo in V.texture_photos) for t in lk.textures)
         assert lk.backdrop_photo in V.backdrop_photos
     assert {t.kind for lk in val for t in lk.textures} == set(V.texture_kinds)
     train = _looks(3, N_DRAWS // 2)
     held = [data.sample_heldout_look(HELD, 0, i, GROUPS) for i in range(200)]
     for lk in train + held:
-        assert lk.lighting != "lamps" and len(lk.lamp_pos) == 0
+        assert lk.lighting != "lamps" and len(lk.lamp_pos) == 0 and lk.livery_period == 0
         assert lk.specular < V.specular[0] and lk.shininess < V.shininess[0]
         assert all(_light(c)[1] < V.light_saturation[0] for c in (lk.ambient_rgb, lk.sun_rgb, lk.flash_rgb, lk.sky_rgb, lk.ground_rgb))
         assert not any(t.kind == "hexagons" or t.photo in V.texture_photos for t in lk.textures)
         assert lk.backdrop_photo not in V.backdrop_photos
+
+
+def test_the_livery_is_painted_in_the_robots_body_frame():
+    """The checker livery moves with the robot: the same layer seen with camera and robot both
+    turned and shifted paints the same pixels; without a body frame nothing is painted."""
+    from rhaml_jax.data._appearance import shade_layer
+
+    rng = np.random.default_rng(0)
+    H = W = 16
+    depth = rng.uniform(1.0, 3.0, (H, W))
+    K = np.array([[10.0, 0, 7.55], [0, 10.0, 7.55], [0, 0, 1]])  # no ray on a cell boundary (x or y exactly 0)
+    albedo, mask, fid = np.full((H, W, 3), 0.3), np.ones((H, W), bool), np.zeros((H, W), int)
+    flat = dict(lighting="hemisphere", sky_rgb=np.ones(3), ground_rgb=np.ones(3), specular=0.0)  # light 1 everywhere
+    look = dataclasses.replace(data.sample_heldout_look(data.OOD_VALIDATION, 0, 0, GROUPS), livery_rgb=np.full(3, 0.9), **flat)
+    c, s_ = np.cos(0.7), np.sin(0.7)
+    R, t = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]]), np.array([2.0, -1.0, 0.3])
+
+    def shade(R, t, body=True):
+        return shade_layer(albedo, mask, depth, fid, np.array([[0.0, 0.0, 1.0]]), K, (R, t), look, body=(R, t) if body else None)
+
+    a = shade(np.eye(3), np.zeros(3))
+    np.testing.assert_allclose(shade(R, t), a, atol=1e-5)
+    assert np.any(np.isclose(a, 0.9)) and np.any(np.isclose(a, 0.3))
+    np.testing.assert_allclose(shade(np.eye(3), np.zeros(3), body=False), 0.3, atol=1e-6)
 
 
 @pytest.mark.parametrize("change,msg", [

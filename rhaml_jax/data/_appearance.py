@@ -22,8 +22,10 @@ transfer to looks nobody has seen:
 - lighting model "lamps": two or three ceiling lamps (point lights 2.4-3.2 m up, anywhere from
   2 m behind to 8 m ahead of the camera, inverse-square falloff) over a dim ambient, strongly
   coloured (saturation 0.7-0.9);
-- robot material: its own colours, glossy (highlights of strength 1-2, exponent 256-1024;
-  training's at most 0.5 and 128, the held-out set's none);
+- robot colouring and material: its own colours under a grey checker livery painted in its body
+  frame (cells of 5-12 cm; training paints every part in one colour, the held-out set teal), and
+  glossy (highlights of strength 1-2, exponent 256-1024; training's at most 0.5 and 128, the
+  held-out set's none);
 - texture family: rooms of hexagonal tiles (`hexagons`) and the `retina` photograph.
 
 Everything sampled here is a pure function of (seed, index): `sample_look` draws from its own
@@ -176,8 +178,9 @@ class HeldoutConfig:
       from below, blended by the surface normal's up component; "lamps": n_lamps ceiling point
       lights of strength lamp (at 3 m) over an ambient of strength ambient. Both coloured with
       saturation light_saturation. part_hue_deg, part_saturation, part_value: every robot part's
-      colour (part_hue_deg None: the robot's own colours). specular, shininess: the robot's
-      highlights (0: none).
+      colour (part_hue_deg None: the robot's own colours). livery_period_m, livery_value: a
+      checker livery over the robot in its body frame, cells of that size, its second colour a
+      grey of that value (period 0: none). specular, shininess: the robot's highlights (0: none).
     texture_kinds: room surfaces ("photo" means one of texture_photos); backdrop_photos:
     photograph backdrops. camera: the camera effects' ranges (not held out: `MILD_CAMERA`, a
     typical camera inside the training ranges, so that a scenario's single draw of its camera
@@ -194,6 +197,8 @@ class HeldoutConfig:
     part_hue_deg: Range | None = (165.0, 195.0)
     part_saturation: Range = (0.45, 0.9)
     part_value: Range = (0.25, 0.85)
+    livery_period_m: Range = (0.0, 0.0)
+    livery_value: Range = (0.05, 0.95)
     specular: Range = (0.0, 0.0)
     shininess: Range = (1.0, 1.0)
     texture_kinds: tuple[str, ...] = ("voronoi", "photo")
@@ -213,6 +218,7 @@ class HeldoutConfig:
         self.camera.validate()
         _check_fields(self, {"sky": (0, None), "ground": (0, None), "n_lamps": (1, 8), "lamp": (0, None), "ambient": (0, None),
                              "light_saturation": (0, 1), "part_hue_deg": (0, 360), "part_saturation": (0, 1), "part_value": (0, 1),
+                             "livery_period_m": (0, None), "livery_value": (0, 1),
                              "specular": (0, None), "shininess": (1, None)})
         unknown = [k for k in self.texture_kinds if k not in _KNOWN_KINDS]
         if unknown:
@@ -293,6 +299,8 @@ def check_apart(a: HeldoutConfig, b: HeldoutConfig, names=("OOD_VALIDATION", "He
         fail("part_hue_deg", f"{a.part_hue_deg} overlaps {b.part_hue_deg}")
     if a.specular[1] > 0 and b.specular[1] > 0 and _overlap(a.specular, b.specular):
         fail("specular", f"{a.specular} overlaps {b.specular}")
+    if a.livery_period_m[1] > 0 and b.livery_period_m[1] > 0:
+        fail("livery_period_m", "both paint a livery")
     kinds = sorted(set(a.texture_kinds) & set(b.texture_kinds) - {"photo"})
     if kinds:
         fail("texture_kinds", f"{kinds} in both")
@@ -345,6 +353,8 @@ class Look:
     distractor_hsv: np.ndarray
     lamp_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # (L, 3) world (m)
     lamp_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # (L, 3) at 3 m
+    livery_period: float = 0.0  # checker cell size in the robot's body frame (m; 0: no livery)
+    livery_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))  # its second colour
 
     @property
     def part_rgb(self) -> np.ndarray:
@@ -473,6 +483,8 @@ def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors:
     extra = {}
     if held.part_hue_deg is None:
         extra["part_hsv"] = rgb_to_hsv(base_colors)
+    if held.livery_period_m[1] > 0:
+        extra.update(livery_period=_u(rng, held.livery_period_m), livery_rgb=np.full(3, _u(rng, held.livery_value)))
     if held.specular[1] > 0:
         extra.update(specular=_u(rng, held.specular), shininess=float(np.exp(rng.uniform(*np.log(held.shininess)))))
     if held.lighting == "lamps":
@@ -536,9 +548,11 @@ def face_normals_world(vertices_world: np.ndarray, faces: np.ndarray, cam_pos) -
     return n
 
 
-def shade_layer(albedo, mask, depth, face_id, normals_world, K, cam_pose, look: Look, highlights: bool = True) -> np.ndarray:
+def shade_layer(albedo, mask, depth, face_id, normals_world, K, cam_pose, look: Look, highlights: bool = True,
+                body=None) -> np.ndarray:
     """A rendered layer (albedo (H, W, 3), mask, depth, face_id) shaded by `look`'s lights:
-    (H, W, 3) float32. cam_pose: (R_world_optical (3, 3), camera position (3,))."""
+    (H, W, 3) float32. cam_pose: (R_world_optical (3, 3), camera position (3,)); body: the
+    robot's (R_world_body (3, 3), position (3,)), where `look` paints a livery (None: none)."""
     R, c = cam_pose
     out = np.zeros(albedo.shape, np.float32)
     ys, xs = np.nonzero(mask)
@@ -550,7 +564,11 @@ def shade_layer(albedo, mask, depth, face_id, normals_world, K, cam_pose, look: 
     view = c - pts
     view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-9)  # guard: a point at the eye
     diffuse, spec = _lights(look, pts, n, c, view if highlights else None)
-    out[ys, xs] = albedo[ys, xs] * diffuse + spec
+    a = albedo[ys, xs]
+    if look.livery_period > 0 and body is not None:
+        cell = np.floor(((pts - body[1]) @ body[0]) / look.livery_period).sum(1) % 2  # checker in the body frame
+        a = np.where(cell[:, None] > 0, look.livery_rgb, a)
+    out[ys, xs] = a * diffuse + spec
     return out
 
 
@@ -611,7 +629,8 @@ def world_from_optical(camera_height: float, observer_xypsi=(0.0, 0.0, 0.0)):
 
 MILD_CAMERA.validate()
 
-OOD_VALIDATION = HeldoutConfig(lighting="lamps", light_saturation=(0.7, 0.9), part_hue_deg=None, specular=(1.0, 2.0),
+OOD_VALIDATION = HeldoutConfig(lighting="lamps", light_saturation=(0.7, 0.9), part_hue_deg=None, livery_period_m=(0.05, 0.12),
+                               specular=(1.0, 2.0),
                                shininess=(256.0, 1024.0), texture_kinds=("hexagons", "photo"), texture_photos=("retina",),
                                backdrop_photos=("retina",))
 """The out-of-distribution validation set's settings (module docstring): outside training's

@@ -298,10 +298,11 @@ def _albedo_layer(mesh: Mesh, T_cam_world: jaxlie.SE3, camera: Camera):
     return np.asarray(out.rgb), np.asarray(out.mask), np.asarray(out.depth), np.asarray(out.face_id)
 
 
-def _shaded(layer, verts_world, faces, camera: Camera, cam_pose, look, highlights=True):
+def _shaded(layer, verts_world, faces, camera: Camera, cam_pose, look, highlights=True, body=None):
     albedo, mask, depth, fid = layer
     n = _ap.face_normals_world(verts_world, faces, cam_pose[1])
-    return _ap.shade_layer(albedo, mask, depth, fid, n, camera.K, cam_pose, look, highlights), mask, np.where(mask, depth, np.inf)
+    return (_ap.shade_layer(albedo, mask, depth, fid, n, camera.K, cam_pose, look, highlights, body), mask,
+            np.where(mask, depth, np.inf))
 
 
 def _floor_shadows(bg_rgb, bg_depth, floor, verts_world, faces, T_cam_world, camera: Camera, look, scale: float):
@@ -377,7 +378,8 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
             layers.append(_shaded(_albedo_layer(dmesh, T_cam, camera), dv, df, camera, cam_pose, look, highlights=False))
         if not negative:
             layer = _albedo_layer(robot_mesh, T_cam @ se3_from_xypsi(pose), camera)
-            layers.append(_shaded(layer, robot_world, faces_model, camera, cam_pose, look))
+            layers.append(_shaded(layer, robot_world, faces_model, camera, cam_pose, look,
+                                  body=(T_world_robot[:3, :3], T_world_robot[:3, 3])))
         linear, visible = _composite_float(layers)
         rgb = _ap.camera_effects(linear, look, scale)
         if negative:
@@ -421,6 +423,6 @@ def scenario_frame_v2(model_mesh, camera: Camera, room, look, observer_xypsi, ob
     T_cam_world = T_cam @ se3_from_xypsi(between(o, np.zeros(3)))  # world -> observer robot -> camera
     bg = _floor_shadows(bg, bg_depth, face == 0, world, np.asarray(model_mesh.faces), T_cam_world, camera, look, scale)
     layer = _albedo_layer(robot_mesh, T_cam @ se3_from_xypsi(rel), camera)
-    robot = _shaded(layer, world, np.asarray(model_mesh.faces), camera, cam_pose, look)
+    robot = _shaded(layer, world, np.asarray(model_mesh.faces), camera, cam_pose, look, body=(T_w[:3, :3], T_w[:3, 3]))
     linear, visible = _composite_float([(bg, np.ones((H, W), bool), bg_depth), robot])
     return _ap.camera_effects(linear, look, scale), visible[-1], rel, bool(visible[-1].sum() >= MIN_VISIBLE_PX)
