@@ -157,13 +157,21 @@ def aligned(mesh, cfg: AlignConfig, seg, frames, init, threshold: float = Refine
     return np.stack(est), ms, conf, (iou if seg is not None else []), score, acc
 
 
+def _iml_estimate(row: dict):
+    """IML's estimate of a frame of `evaluate --json`: `est` of an IML-only run, `iml_est` of a
+    pipeline run (None where the IML did not detect the robot)."""
+    if "iml_est" in row:
+        return row["iml_est"] if row["detected"] else None
+    return row["est"]
+
+
 def main(a: Args) -> list[dict]:
     allocator.tune_allocator()
     frames, inits_iml = [], []
     for i, root in enumerate(a.data):
         fr = [f for f in data.read_bop(root, a.split) if f.observed]
         if a.iml_json:  # the frames the IML detected (est is None for the others), as evaluate scores them
-            est = {(r["scene_id"], r["im_id"]): r["est"] for r in json.loads(Path(a.iml_json[i]).read_text())["frames"]}
+            est = {(r["scene_id"], r["im_id"]): _iml_estimate(r) for r in json.loads(Path(a.iml_json[i]).read_text())["frames"]}
             fr = [f for f in fr if est[(f.scene_id, f.im_id)] is not None]
             inits_iml += [est[(f.scene_id, f.im_id)] for f in fr][:: a.stride]
         frames += fr[:: a.stride]

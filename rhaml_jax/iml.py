@@ -12,7 +12,8 @@ vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
 
 `IMLModel` is the static part (network definitions and switches; hashed by identity, so each
 loaded model compiles once per input shape), `IMLParams` the arrays. `load_iml` builds both from
-checkpoint folders (default: the shipped `amlnet_cpu` + `zoom_cpu`).
+checkpoint folders (default: the shipped `heat_fit_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
+`DEFAULT_ZOOM`).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from rhaml_jax import crop
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit", "check_mirror_symmetric"]
+__all__ = ["DEFAULT_AMLNET", "DEFAULT_ZOOM", "Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit", "check_mirror_symmetric"]
 
 
 class Estimate(NamedTuple):
@@ -122,11 +123,18 @@ def check_mirror_symmetric(model, model_path) -> None:
                          f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
 
 
+# The default networks (shipped in rhaml_jax/checkpoints), chosen in session 19 on two validation
+# sets, our look and the OOD one (BENCHMARKS.md, "An out-of-distribution validation set"): made by
+# `python -m rhaml_jax.fit --robot pioneer3dx --budget-minutes 130 --from-scratch` (dense first
+# stage, luminance zoom stage). Until then `amlnet_cpu` + `zoom_cpu`, still shipped.
+DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_fit_cpu", "zoom_fit_cpu"
+
+
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
              zoom_mirror: bool = False, robot=None, robot_source: str = "the data set",
              calibrated: bool = True) -> tuple[IMLModel, IMLParams]:
-    """IML from checkpoint folders. Defaults: the shipped `amlnet_cpu` and, with it, its own
-    `zoom_cpu` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
+    """IML from checkpoint folders. Defaults: the shipped `DEFAULT_AMLNET` and, with it, its own
+    `DEFAULT_ZOOM` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
     RobotModel, from `robot_source`), networks made for another robot are refused: by the
     fingerprint each checkpoint stores (`robots.check_same_robot`) or, for a zoom stage from
     before fingerprints, by its robot length (`zoom_length_m`, 15 %). The zoom checkpoint's flip
@@ -135,12 +143,12 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
     from rhaml_jax.amlnet.checkpoint import checkpoint_meta, checkpoint_robot
 
-    amlnet_dir = amlnet or shipped_checkpoint("amlnet_cpu")
+    amlnet_dir = amlnet or shipped_checkpoint(DEFAULT_AMLNET)
     net, p, s = load_model(amlnet_dir)
     if getattr(net.cfg, "task", "localize") != "localize":
         raise RhamlError(f"--amlnet {amlnet}: holds a zoom-in stage ({net.cfg.name}), not AMLNet")
     if zoom is None and amlnet is None and not no_zoom:
-        zoom = shipped_checkpoint("zoom_cpu")
+        zoom = shipped_checkpoint(DEFAULT_ZOOM)
     znet, zp = None, None
     if zoom is not None and not no_zoom:
         znet, zparams, zstats = load_model(zoom)
