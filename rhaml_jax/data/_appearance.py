@@ -465,7 +465,8 @@ def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors:
     held.camera's ranges). A pure function of its arguments."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _STREAM_HELDOUT]))
     G = len(base_colors)
-    part = np.stack([rng.uniform(*(held.part_hue_deg or (0.0, 360.0)), G), rng.uniform(*held.part_saturation, G), rng.uniform(*held.part_value, G)], 1)
+    hue = held.part_hue_deg or (0.0, 360.0)  # (None: replaced by the robot's own colours below)
+    part = np.stack([rng.uniform(*hue, G), rng.uniform(*held.part_saturation, G), rng.uniform(*held.part_value, G)], 1)
     sky_hue = rng.uniform(0, 360)
     sky = hsv_to_rgb(np.array([sky_hue, _u(rng, held.light_saturation), 1.0])) * _u(rng, held.sky)
     ground = hsv_to_rgb(np.array([(sky_hue + rng.uniform(90, 270)) % 360, _u(rng, held.light_saturation), 1.0])) * _u(rng, held.ground)
@@ -629,9 +630,8 @@ def world_from_optical(camera_height: float, observer_xypsi=(0.0, 0.0, 0.0)):
 
 MILD_CAMERA.validate()
 
-OOD_VALIDATION = HeldoutConfig(lighting="lamps", light_saturation=(0.7, 0.9), part_hue_deg=None, livery_period_m=(0.05, 0.12),
-                               specular=(1.0, 2.0),
-                               shininess=(256.0, 1024.0), texture_kinds=("hexagons", "photo"), texture_photos=("retina",),
-                               backdrop_photos=("retina",))
+OOD_VALIDATION = HeldoutConfig(lighting="lamps", light_saturation=(0.7, 0.9), part_hue_deg=None,
+                               livery_period_m=(0.05, 0.12), specular=(1.0, 2.0), shininess=(256.0, 1024.0),
+                               texture_kinds=("hexagons", "photo"), texture_photos=("retina",), backdrop_photos=("retina",))
 """The out-of-distribution validation set's settings (module docstring): outside training's
 ranges and apart from the held-out set's; choices are made on it, never on the held-out set."""
