@@ -9,7 +9,8 @@ batch fusion (`pgo.fuse_calibrated`: fuse, calibrate, rescale, fuse again, as
 (every observation's x, y error alike: the pipeline's model until session 18), `relative` (the
 error a percentage of the range: the pipeline's default since), `unguarded` (relative without
 the support guard: the pipeline until session 19), `slope` (relative, c_1 fitted too). Prints abs dx, dy (cm) and ATE of each, the estimates'
-true range bias (mean log est/true range over the fusion's inliers) and the fitted c_0.
+true range bias (mean log est/true range over the fusion's inliers), the fitted c_0 and the rows the
+fusion kept (`off`: the uncalibrated fusion's, which the fits start from).
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ from rhaml_jax.sequence import group_scenes, load_scene
 
 
 def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
-    """Every range-model variant's fused estimates (N, 3) and c (2,), and the uncalibrated
-    fusion's kept rows (N,) bool (those the fits start from)."""
+    """Every range-model variant's fused estimates (N, 3), c (2,) and number of rows kept, and the
+    uncalibrated fusion's kept rows (N,) bool (those the fits start from)."""
     seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
@@ -37,11 +38,12 @@ def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
     cfg = pgo.FusionConfig()
     rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
     first = pgo.fuse_jit(rv, cfg, valid=det, flip_prob=flip)
-    out = {"off": (np.asarray(first.relative), np.zeros(2))}
+    kept = np.asarray(first.inlier & det)
+    out = {"off": (np.asarray(first.relative), np.zeros(2), int(kept.sum()))}
     for v, kw in VARIANTS.items():
         fusion, c = FUSE_CALIBRATED(rv, cfg, det, flip, **kw)
-        out[v] = (np.asarray(fusion.relative), np.asarray(c))
-    return out, np.asarray(first.inlier & det)
+        out[v] = (np.asarray(fusion.relative), np.asarray(c), int(np.sum(np.asarray(fusion.inlier & det))))
+    return out, kept
 
 
 # the pipeline runs "relative"; all but "unguarded" keep a calibration only with the support guard
@@ -69,12 +71,13 @@ def main() -> None:
             variants, kept = fused(rows, scene, key)
             k = kept & seen
             bias = float(np.mean(np.log(np.hypot(*est0[k, :2].T) / np.hypot(*gt[k, :2].T))))
-            for v, (est, c) in variants.items():
+            for v, (est, c, n_kept) in variants.items():
                 m = metrics.summarize(est[seen], gt[seen])
                 out.append({"run": js, "estimates": key, "variant": v, "dx_cm": m["dx_cm"][0], "dy_cm": m["dy_cm"][0],
-                            "ate": m["ate"], "c": c.tolist(), "bias": bias})
+                            "ate": m["ate"], "c": c.tolist(), "bias": bias,
+                            "kept": n_kept, "detected": int(np.sum([r["detected"] for r in rows]))})
                 print(f"{Path(js).name:36s} {key:7s} {v:8s} dx {m['dx_cm'][0]:5.2f} dy {m['dy_cm'][0]:5.2f} "
-                      f"ATE {m['ate']:.4f}  bias {100 * bias:+.2f} %  c0 {100 * c[0]:+.2f} %", flush=True)
+                      f"ATE {m['ate']:.4f}  bias {100 * bias:+.2f} %  c0 {100 * c[0]:+.2f} %  kept {n_kept}", flush=True)
     a.out.write_text(json.dumps(out, indent=1))
 
 

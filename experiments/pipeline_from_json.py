@@ -1,0 +1,89 @@
+"""The four module combinations' figures from stored per-frame estimates (no network runs here).
+
+  python experiments/pipeline_from_json.py --set LABEL EVAL.json DATA [EVAL.json DATA ...] [--set ...]
+      [--thresholds 0.5 0.4 0.3] [--out OUT.json]
+
+Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA. Per set (its
+scenes pooled): IML and IML+IR from the stored `iml_est` / `ir_est`, IML+PGO and IML+IR+PGO refitted
+through the pipeline's batch fusion (`pgo.fuse_calibrated`, as `pipeline.fuse_estimates`): mean abs
+dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate` scores it), flips
+(> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
+again with a frame called detected at o >= t (the pipeline's threshold is 0.5).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import pgo
+from rhaml_jax.data import read_bop
+from rhaml_jax.evaluate import score
+from rhaml_jax.metrics import flipped
+from rhaml_jax.sequence import group_scenes, load_scene
+
+FUSE = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope"))
+
+
+def fused(rows: list[dict], scene, key: str, detected: np.ndarray) -> np.ndarray:
+    """The pipeline's fused estimates (N, 3) of the stored `key` estimates; the stage's own
+    where no rendezvous is usable (as the pipeline)."""
+    seq = scene.seq
+    xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
+    flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
+    rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
+    f, _ = FUSE(rv, pgo.FusionConfig(), jnp.asarray(detected), flip)
+    return np.where(np.any(np.asarray(f.inlier) & detected), np.asarray(f.relative), np.asarray(xypsi))
+
+
+def summary(parts) -> dict:
+    est, det, obs, gt = (np.concatenate([q[i] for q in parts]) for i in range(4))
+    m, k = score(est, det, obs, gt), det & obs
+    dpsi = np.degrees(np.abs((est[k, 2] - gt[k, 2] + np.pi) % (2 * np.pi) - np.pi))
+    ratio = np.hypot(*est[k, :2].T) / np.hypot(*gt[k, :2].T)
+    return {"dx_cm": m["dx_cm"][0], "dy_cm": m["dy_cm"][0], "median_dpsi_deg": float(np.median(dpsi)) if k.any() else None,
+            "ate": m["ate"], "flips": int(np.sum(flipped(est[k, 2], gt[k, 2]))), "detected": int(k.sum()),
+            "observed": int(obs.sum()), "median_range_ratio": float(np.median(ratio)) if k.any() else None}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--set", nargs="+", action="append", required=True, metavar="LABEL EVAL.json DATA",
+                    help="a label, then pairs of evaluate --json output and its BOP data folder")
+    ap.add_argument("--thresholds", nargs="+", type=float, default=())
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args()
+    out = {}
+    for label, *rest in a.set:
+        if not rest or len(rest) % 2:
+            ap.error(f"--set {label}: expected pairs EVAL.json DATA")
+        acc: dict[str, list] = {}
+        for js, data in zip(rest[::2], rest[1::2]):
+            rows = json.loads(Path(js).read_text())["frames"]
+            if "ir_est" not in rows[0]:
+                ap.error(f"{js}: no ir_est rows (run evaluate --modules iml,ir,pgo)")
+            scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])
+            det, o = np.array([r["detected"] for r in rows]), np.array([r["o"] for r in rows])
+            add = lambda k, est, d=det: acc.setdefault(k, []).append((est, d, scene.observed, scene.gt))  # noqa: E731
+            add("IML", np.array([r["iml_est"] for r in rows]))
+            add("IML+IR", np.array([r["ir_est"] for r in rows]))
+            add("IML+PGO", fused(rows, scene, "iml_est", det))
+            add("IML+IR+PGO", fused(rows, scene, "ir_est", det))
+            for t in a.thresholds:
+                add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t), o >= t)
+        out[label] = {k: summary(v) for k, v in acc.items()}
+        for k, m in out[label].items():
+            print(f"| {label} | {k} | {m['dx_cm']:.1f} / {m['dy_cm']:.1f} | {m['median_dpsi_deg'] or float('nan'):.1f} | "
+                  f"{m['ate']:.3f} | {m['flips']} | {m['detected']} / {m['observed']} | {m['median_range_ratio'] or float('nan'):.3f} |",
+                  flush=True)
+    if a.out:
+        a.out.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
