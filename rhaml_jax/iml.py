@@ -29,7 +29,8 @@ from rhaml_jax import crop
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.errors import RhamlError
 
-__all__ = ["DEFAULT_AMLNET", "DEFAULT_ZOOM", "Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit", "check_mirror_symmetric"]
+__all__ = ["DEFAULT_AMLNET", "DEFAULT_ZOOM", "Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit",
+           "check_mirror_symmetric"]
 
 
 class Estimate(NamedTuple):
