@@ -5,7 +5,7 @@
 
 Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA. Per set (its
 scenes pooled): IML and IML+IR from the stored `iml_est` / `ir_est`, IML+PGO and IML+IR+PGO refitted
-through the pipeline's batch fusion (`pgo.fuse_calibrated`, as `pipeline.fuse_estimates`): mean abs
+through the pipeline's own batch fusion (`pipeline.fuse_estimates`): mean abs
 dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate` scores it), flips
 (> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
 again with a frame called detected at o >= t (the pipeline's threshold is 0.5).
@@ -21,24 +21,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhaml_jax import pgo
+from rhaml_jax import pipeline
 from rhaml_jax.data import read_bop
 from rhaml_jax.evaluate import score
+from rhaml_jax.iml import Estimate
 from rhaml_jax.metrics import flipped
 from rhaml_jax.sequence import group_scenes, load_scene
 
-FUSE = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope"))
+FUSE = jax.jit(pipeline.fuse_estimates, static_argnums=0)
+BATCH = pipeline.PipelineConfig(modules=("iml", "pgo"))  # batch fusion with range calibration, as evaluate's
 
 
 def fused(rows: list[dict], scene, key: str, detected: np.ndarray) -> np.ndarray:
-    """The pipeline's fused estimates (N, 3) of the stored `key` estimates; the stage's own
-    where no rendezvous is usable (as the pipeline)."""
+    """The pipeline's fused estimates (N, 3) of the stored `key` estimates (`pipeline.fuse_estimates`,
+    planar observations as the stored rows give them)."""
     seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
-    rv = pgo.rendezvous_from_frames(seq.odom_a, seq.odom_b, pgo.observation_from_xy_yaw_rp(xypsi, None), seq.a_observes)
-    f, _ = FUSE(rv, pgo.FusionConfig(), jnp.asarray(detected), flip)
-    return np.where(np.any(np.asarray(f.inlier) & detected), np.asarray(f.relative), np.asarray(xypsi))
+    n = len(rows)
+    est = Estimate(xypsi=xypsi, o=jnp.ones(n, jnp.float32), flip_prob=flip, roll_pitch=jnp.zeros((n, 2), jnp.float32))
+    fusion, _ = FUSE(BATCH, est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
+    return np.asarray(fusion.relative)
 
 
 def summary(parts) -> dict:

@@ -67,7 +67,7 @@ class Args:
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
-    odometry (`pgo.range_model`) and fusing again"""
+    odometry (`pgo.fuse_calibrated`) and fusing again"""
     batch: int = 32
     """frames per network call"""
     allow_other_robot: bool = False
