@@ -308,3 +308,41 @@ def test_heldout_rendezvous_is_two_scenes_in_the_heldout_look(tmp_path):
     assert a.shape == b.shape and np.abs(a.astype(int) - b.astype(int)).mean() > 5  # another look
     with pytest.raises(RhamlError, match="drop --scenario"):
         generate(Args(out=tmp_path / "c", heldout=True, scenario="circle"))
+
+
+def test_camouflage_is_drawn_last_inside_its_range_and_never_in_the_heldout_band():
+    """camouflage_prob: t inside `camouflage` as often as the probability says, drawn after every
+    other factor (a set without camouflage keeps its draws); a robot recoloured towards teal
+    surroundings never takes the held-out colouring."""
+    camo = dataclasses.replace(CFG, camouflage_prob=0.5)
+    plain, looks = _looks(4, 400), [data.sample_look(camo, 4, i, GROUPS) for i in range(400)]
+    assert all(_same(dataclasses.replace(lk, camouflage=0.0), p) for lk, p in zip(looks, plain))
+    t = np.array([lk.camouflage for lk in looks])
+    assert abs(np.mean(t > 0) - 0.5) < 0.07 and np.all((t == 0) | ((t >= CFG.camouflage[0]) & (t <= CFG.camouflage[1])))
+    assert np.all([p.camouflage == 0 for p in plain])
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        parts, robot, around = rng.uniform(0, 1, (6, 3)), rng.uniform(0.05, 1, 3), rng.uniform(0.05, 1, 3)
+        around = np.array([0.1, 0.7, 0.65]) * around[0] if rng.random() < 0.5 else around  # teal surroundings
+        new = data._appearance.camouflaged(parts, robot, around, float(rng.uniform(0.5, 1.0)), CFG)
+        assert new.shape == parts.shape and np.all((new >= 0) & (new <= 1))
+        assert not np.any(_in_heldout_band(rgb_to_hsv(new), HELD))
+    # t = 1 with nothing clipped: the robot takes its surroundings' mean colour exactly
+    parts, robot, around = np.full((2, 3), 0.4), np.array([0.2, 0.3, 0.4]), np.array([0.3, 0.2, 0.1])
+    assert np.allclose(data._appearance.camouflaged(parts, robot, around, 1.0, CFG), parts * around / robot)
+
+
+def test_a_camouflaged_robot_is_closer_to_its_surroundings():
+    """In rendered images, the robot's mean colour moves towards the scene's around it."""
+    mesh = as_mesh(load_robot("pioneer3dx"))
+    gaps = {}
+    for p in (0.0, 1.0):
+        cfg = data.SynthConfig(appearance=dataclasses.replace(CFG, camouflage_prob=p, camouflage=(1.0, 1.0)))
+        gaps[p] = []
+        for i in range(6):
+            s = data.training_sample(mesh, SMALL, 9, i, negative=False, cfg=cfg)
+            ys, xs = np.nonzero(s.mask_visib)
+            box = s.rgb[max(0, 2 * ys.min() - ys.max()):2 * ys.max() - ys.min() + 1, max(0, 2 * xs.min() - xs.max()):2 * xs.max() - xs.min() + 1]
+            inside = s.mask_visib[max(0, 2 * ys.min() - ys.max()):2 * ys.max() - ys.min() + 1, max(0, 2 * xs.min() - xs.max()):2 * xs.max() - xs.min() + 1]
+            gaps[p].append(np.abs(box[inside].mean(0) - box[~inside].mean(0)).sum())
+    assert np.mean(gaps[1.0]) < 0.5 * np.mean(gaps[0.0]), gaps

@@ -99,6 +99,14 @@ class AppearanceConfig:
       from backdrop_photos.
     Distractors: each slot is a robot-like cart (a box on four wheels, length cart_length_m, other
       colours and sizes than the robot: no size cue from a robot-like shape) with cart_prob.
+    Camouflage (a robot as hard to see as its surroundings make it; issue 18's misses were dark
+      or teal robots on dark or green walls): with camouflage_prob, every part's colour is
+      multiplied per channel by (m_around / m_robot) ** t, t in camouflage, where m_robot is the
+      robot's mean shaded colour and m_around the scene's mean colour around it (its bounding box
+      grown by half its size on each side, the robot's own pixels left out). At t = 1 the robot
+      takes its surroundings' mean colour and brightness; its shading and the contrast between
+      its parts stay, so its shape is what remains to see. Parts are clipped to [0, 1] and kept
+      out of hue_exclude_deg. 0 in the v2 and v3 sets (which it leaves as they were: no draw at 0).
     """
 
     part_grey_prob: float = 0.15
@@ -141,6 +149,8 @@ class AppearanceConfig:
     backdrop_photos: tuple[str, ...] = PHOTOS + ("cat", "hubble_deep_field", "immunohistochemistry", "colorwheel")
     cart_prob: float = 0.4
     cart_length_m: Range = (0.2, 0.9)
+    camouflage_prob: float = 0.0
+    camouflage: Range = (0.5, 1.0)
 
     def __post_init__(self):
         if not _DEFERRED[0]:
@@ -153,7 +163,7 @@ class AppearanceConfig:
                   "flash_falloff": (0, None), "light_saturation": (0, 1), "specular": (0, None), "shininess": (1, None),
                   "shadow_strength": (0, 1), "shadow_blur_px": (0, None), "contact_strength": (0, 1), "white_balance": (0, None),
                   "gamma": (0.1, None), "vignette": (0, 1), "defocus_px": (0, None), "motion_px": (0, None), "noise": (0, None),
-                  "jpeg_quality": (1, 100), "cart_length_m": (0.05, None)}
+                  "jpeg_quality": (1, 100), "cart_length_m": (0.05, None), "camouflage": (0, 1)}
         _check_fields(self, bounds)
         unknown = [k for k in self.texture_kinds if k not in _KNOWN_KINDS]
         if unknown:
@@ -355,6 +365,7 @@ class Look:
     lamp_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # (L, 3) at 3 m
     livery_period: float = 0.0  # checker cell size in the robot's body frame (m; 0: no livery)
     livery_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))  # its second colour
+    camouflage: float = 0.0  # t of AppearanceConfig.camouflage (0: none)
 
     @property
     def part_rgb(self) -> np.ndarray:
@@ -442,7 +453,7 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
     flash = lighting == "sun+flash" and rng.random() < cfg.flash_prob
     distractors = np.stack([_part_hsv(rng, np.array([[0.0, 1.0, 0.8], [0.0, 0.0, 0.1]]), cfg) for _ in range(slots)])
     shadow = rng.random() < cfg.shadow_prob
-    return Look(
+    look = Look(
         part_hsv=part, lighting=lighting,
         ambient_rgb=_light_rgb(rng, cfg.light_saturation, _u(rng, cfg.ambient)),
         sun_rgb=_light_rgb(rng, cfg.light_saturation, _u(rng, cfg.sun)),
@@ -458,6 +469,20 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
         backdrop_photo=cfg.backdrop_photos[rng.integers(len(cfg.backdrop_photos))],
         distractor_hsv=distractors,
     )
+    if cfg.camouflage_prob > 0 and rng.random() < cfg.camouflage_prob:  # last: no draw at 0, older sets unchanged
+        look = dataclasses.replace(look, camouflage=_u(rng, cfg.camouflage))
+    return look
+
+
+def camouflaged(part_rgb: np.ndarray, robot_mean: np.ndarray, around_mean: np.ndarray, t: float,
+                cfg: AppearanceConfig) -> np.ndarray:
+    """The parts' colours (G, 3) under camouflage t (see `AppearanceConfig`): each channel times
+    (around_mean / robot_mean) ** t, clipped to [0, 1], hues kept out of cfg.hue_exclude_deg."""
+    eps = 1e-3  # guard: a black robot or a black surround (the gain stays finite)
+    gain = (np.maximum(around_mean, eps) / np.maximum(robot_mean, eps)) ** t
+    hsv = rgb_to_hsv(np.clip(np.asarray(part_rgb, np.float64) * gain, 0.0, 1.0))
+    hsv[:, 0] = [_out_of_band(h, s, cfg) for h, s, _ in hsv]
+    return hsv_to_rgb(hsv)
 
 
 def sample_heldout_look(held: HeldoutConfig, seed: int, index: int, base_colors: np.ndarray, slots: int = 4) -> Look:

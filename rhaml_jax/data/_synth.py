@@ -325,6 +325,21 @@ def _floor_shadows(bg_rgb, bg_depth, floor, verts_world, faces, T_cam_world, cam
     return out
 
 
+def _camouflage(robot, layers, look, acfg) -> np.ndarray:
+    """The robot's part colours (G, 3) recoloured towards the scene around it (AppearanceConfig's
+    camouflage): robot = (shaded rgb, mask, depth) as first shaded; layers: the scene without it."""
+    rgb, mask = robot[0], robot[1].astype(bool)
+    scene, _ = _composite_float(layers)
+    ys, xs = np.nonzero(mask)
+    (y0, y1), (x0, x1) = (ys.min(), ys.max() + 1), (xs.min(), xs.max() + 1)
+    gy, gx = (y1 - y0 + 1) // 2, (x1 - x0 + 1) // 2
+    box = (slice(max(0, y0 - gy), y1 + gy), slice(max(0, x0 - gx), x1 + gx))
+    around = scene[box][~mask[box]]
+    if len(around) == 0:  # guard: the robot fills the whole box (cannot happen with a grown box inside the image)
+        return look.part_rgb
+    return _ap.camouflaged(look.part_rgb, rgb[mask].mean(0), around.mean(0), look.camouflage, acfg)
+
+
 def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negative: bool | None = None,
                        cfg: "SynthConfig" = None, heldout=None) -> Sample:
     """`training_sample` with the v2 appearance randomisation of cfg.appearance (robot colours,
@@ -378,8 +393,13 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
             layers.append(_shaded(_albedo_layer(dmesh, T_cam, camera), dv, df, camera, cam_pose, look, highlights=False))
         if not negative:
             layer = _albedo_layer(robot_mesh, T_cam @ se3_from_xypsi(pose), camera)
-            layers.append(_shaded(layer, robot_world, faces_model, camera, cam_pose, look,
-                                  body=(T_world_robot[:3, :3], T_world_robot[:3, 3])))
+            body = (T_world_robot[:3, :3], T_world_robot[:3, 3])
+            robot = _shaded(layer, robot_world, faces_model, camera, cam_pose, look, body=body)
+            if look.camouflage > 0 and layer[1].any():
+                parts = _camouflage(robot, layers, look, acfg)
+                albedo = np.where(layer[1][..., None], parts[group_of_face[np.maximum(layer[3], 0)]], 0.0).astype(np.float32)
+                robot = _shaded((albedo,) + layer[1:], robot_world, faces_model, camera, cam_pose, look, body=body)
+            layers.append(robot)
         linear, visible = _composite_float(layers)
         rgb = _ap.camera_effects(linear, look, scale)
         if negative:
