@@ -48,7 +48,12 @@ def test_no_calibration_from_garbage():
     fusion, c = _fuse(stuck, odom)
     assert float(jnp.mean(fusion.inlier)) < pgo.MIN_SUPPORT
     np.testing.assert_array_equal(np.asarray(c), 0.0)
-    np.testing.assert_allclose(np.asarray(fusion.relative), np.asarray(first.relative), atol=1e-5)
+    # the first fusion is returned; the two compilations of that solve agree to the float32
+    # Gauss-Newton's precision (0.3 mm measured on one machine), not bit for bit, while a kept
+    # calibration would have moved the estimates by decimetres
+    kept = pgo.fuse_jit(pgo.rescale_observations(rv, c_fit), pgo.FusionConfig())
+    assert float(jnp.max(jnp.abs(kept.relative - first.relative))) > 0.05
+    np.testing.assert_allclose(np.asarray(fusion.relative), np.asarray(first.relative), atol=2e-3)
 
 
 def test_calibrates_a_biased_localiser_and_half_garbage():
