@@ -99,8 +99,8 @@ class AppearanceConfig:
       from backdrop_photos.
     Distractors: each slot is a robot-like cart (a box on four wheels, length cart_length_m, other
       colours and sizes than the robot: no size cue from a robot-like shape) with cart_prob.
-    Camouflage (a robot as hard to see as its surroundings make it; issue 18's misses were dark
-      or teal robots on dark or green walls): with camouflage_prob, every part's colour is
+    Camouflage (a robot as hard to see as its surroundings make it, as the far robots IML misses
+      on the OOD validation sine are: BENCHMARKS.md, "What IML misses"): with camouflage_prob, every part's colour is
       multiplied per channel by (m_around / m_robot) ** t, t in camouflage, where m_robot is the
       robot's mean shaded colour and m_around the scene's mean colour around it (its bounding box
       grown by half its size on each side, the robot's own pixels left out). At t = 1 the robot

@@ -335,7 +335,7 @@ def _camouflage(robot, layers, look, acfg) -> np.ndarray:
     gy, gx = (y1 - y0 + 1) // 2, (x1 - x0 + 1) // 2
     box = (slice(max(0, y0 - gy), y1 + gy), slice(max(0, x0 - gx), x1 + gx))
     around = scene[box][~mask[box]]
-    if len(around) == 0:  # guard: the robot fills the whole box (cannot happen with a grown box inside the image)
+    if len(around) == 0:  # guard: the robot fills its whole box (it fills the image); nothing to match
         return look.part_rgb
     return _ap.camouflaged(look.part_rgb, rgb[mask].mean(0), around.mean(0), look.camouflage, acfg)
 
