@@ -19,6 +19,8 @@ import json
 import cv2
 import numpy as np
 
+from rhaml_jax.data._appearance import surroundings
+
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 
@@ -32,15 +34,13 @@ def frame_row(data: str, f: dict) -> list[float] | None:
     if not mask.any():
         return None
     luma = cv2.imread(f"{scene}/rgb/{f['im_id']:06d}.png")[..., ::-1].astype(np.float32) @ LUMA / 255.0
-    ys, xs = np.nonzero(mask)
-    gy, gx = np.ptp(ys) // 2 + 1, np.ptp(xs) // 2 + 1
-    box = (slice(max(0, ys.min() - gy), ys.max() + gy + 1), slice(max(0, xs.min() - gx), xs.max() + gx + 1))
-    robot, around = float(luma[mask].mean()), float(luma[box][~mask[box]].mean())
+    box, outside = surroundings(mask)
+    robot, around = float(luma[mask].mean()), float(luma[box][outside].mean())
     x, y, psi = f["gt"]
     bearing = np.arctan2(y, x)
     rel = abs((psi - bearing + np.pi) % (2 * np.pi) - np.pi)
     return [float(f["detected"]), float(np.hypot(x, y)), float(np.degrees(bearing)), float(np.degrees(rel)), float(f["o"]),
-            robot, around, abs(robot - around), float(np.ptp(xs) + 1)]
+            robot, around, abs(robot - around), float(np.ptp(np.nonzero(mask)[1]) + 1)]
 
 
 def main() -> None:

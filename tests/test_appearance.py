@@ -341,9 +341,7 @@ def test_a_camouflaged_robot_is_closer_to_its_surroundings():
         gaps[p] = []
         for i in range(6):
             s = data.training_sample(mesh, SMALL, 9, i, negative=False, cfg=cfg)
-            ys, xs = np.nonzero(s.mask_visib)  # the robot's box grown by its size on each side
-            box = (slice(max(0, 2 * ys.min() - ys.max()), 2 * ys.max() - ys.min() + 1),
-                   slice(max(0, 2 * xs.min() - xs.max()), 2 * xs.max() - xs.min() + 1))
-            rgb, inside = s.rgb[box].astype(np.float64), s.mask_visib[box]
-            gaps[p].append(np.abs(rgb[inside].mean(0) - rgb[~inside].mean(0)).sum())
+            box, outside = data._appearance.surroundings(s.mask_visib.astype(bool))
+            rgb = s.rgb[box].astype(np.float64)
+            gaps[p].append(np.abs(rgb[~outside].mean(0) - rgb[outside].mean(0)).sum())
     assert np.mean(gaps[1.0]) < 0.5 * np.mean(gaps[0.0]), gaps

@@ -474,6 +474,17 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
     return look
 
 
+def surroundings(mask: np.ndarray) -> tuple[tuple[slice, slice], np.ndarray]:
+    """The robot's surroundings in an image: (box, around), box the slices of the mask's bounding
+    box grown by half its size on each side (clipped to the image), around the (h, w) boolean of
+    that box's pixels outside the mask. Camouflage matches the robot to them; the detection-miss
+    study measures contrast against them."""
+    ys, xs = np.nonzero(mask)
+    gy, gx = (np.ptp(ys) + 2) // 2, (np.ptp(xs) + 2) // 2
+    box = (slice(max(0, ys.min() - gy), ys.max() + 1 + gy), slice(max(0, xs.min() - gx), xs.max() + 1 + gx))
+    return box, ~mask[box]
+
+
 def camouflaged(part_rgb: np.ndarray, robot_mean: np.ndarray, around_mean: np.ndarray, t: float,
                 cfg: AppearanceConfig) -> np.ndarray:
     """The parts' colours (G, 3) under camouflage t (see `AppearanceConfig`): each channel times

@@ -330,11 +330,8 @@ def _camouflage(robot, layers, look, acfg) -> np.ndarray:
     camouflage): robot = (shaded rgb, mask, depth) as first shaded; layers: the scene without it."""
     rgb, mask = robot[0], robot[1].astype(bool)
     scene, _ = _composite_float(layers)
-    ys, xs = np.nonzero(mask)
-    (y0, y1), (x0, x1) = (ys.min(), ys.max() + 1), (xs.min(), xs.max() + 1)
-    gy, gx = (y1 - y0 + 1) // 2, (x1 - x0 + 1) // 2
-    box = (slice(max(0, y0 - gy), y1 + gy), slice(max(0, x0 - gx), x1 + gx))
-    around = scene[box][~mask[box]]
+    box, outside = _ap.surroundings(mask)
+    around = scene[box][outside]
     if len(around) == 0:  # guard: the robot fills its whole box (it fills the image); nothing to match
         return look.part_rgb
     return _ap.camouflaged(look.part_rgb, rgb[mask].mean(0), around.mean(0), look.camouflage, acfg)
