@@ -8,7 +8,9 @@ scenes pooled): IML and IML+IR from the stored `iml_est` / `ir_est`, IML+PGO and
 through the pipeline's own batch fusion (`pipeline.fuse_estimates`): mean abs
 dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate` scores it), flips
 (> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
-again with a frame called detected at o >= t (the pipeline's threshold is 0.5).
+again with a frame called detected at o >= t (the pipeline's threshold is 0.5). Also how well the
+stored IML flip probability predicts IML's flips over the detected frames (`zoom.calibration_metrics`:
+Brier score, calibration error, ROC area), one line per set.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from rhaml_jax.evaluate import score
 from rhaml_jax.iml import Estimate
 from rhaml_jax.metrics import flipped
 from rhaml_jax.sequence import group_scenes, load_scene
+from rhaml_jax.zoom import calibration_metrics
 
 FUSE = jax.jit(pipeline.fuse_estimates, static_argnums=0)
 BATCH = pipeline.PipelineConfig(modules=("iml", "pgo"))  # batch fusion with range calibration, as evaluate's
@@ -66,6 +69,7 @@ def main() -> None:
         if not rest or len(rest) % 2:
             ap.error(f"--set {label}: expected pairs EVAL.json DATA")
         acc: dict[str, list] = {}
+        flip_prob, is_flip = [], []
         for js, data in zip(rest[::2], rest[1::2]):
             rows = json.loads(Path(js).read_text())["frames"]
             if "ir_est" not in rows[0]:
@@ -79,11 +83,17 @@ def main() -> None:
             add("IML+IR+PGO", fused(rows, scene, "ir_est", det))
             for t in a.thresholds:
                 add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t), o >= t)
+            k = det & scene.observed
+            flip_prob.append(np.array([r["iml_flip_prob"] for r in rows])[k])
+            is_flip.append(flipped(np.array([r["iml_est"] for r in rows])[k, 2], np.asarray(scene.gt)[k, 2]))
         out[label] = {k: summary(v) for k, v in acc.items()}
         for k, m in out[label].items():
             print(f"| {label} | {k} | {m['dx_cm']:.1f} / {m['dy_cm']:.1f} | {m['median_dpsi_deg'] or float('nan'):.1f} | "
                   f"{m['ate']:.3f} | {m['flips']} | {m['detected']} / {m['observed']} | {m['median_range_ratio'] or float('nan'):.3f} |",
                   flush=True)
+        out[label]["IML flip calibration"] = cal = calibration_metrics(np.concatenate(flip_prob), np.concatenate(is_flip))
+        print(f"{label}: IML flip probability against IML's flips, {cal['flips']} of {cal['frames']}: Brier "
+              f"{cal['brier']:.4f}, calibration error {cal['ece']:.4f}, ROC area {cal['auroc'] or float('nan'):.3f}", flush=True)
     if a.out:
         a.out.write_text(json.dumps(out, indent=1))
 
