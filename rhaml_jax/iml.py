@@ -12,7 +12,7 @@ vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
 
 `IMLModel` is the static part (network definitions and switches; hashed by identity, so each
 loaded model compiles once per input shape), `IMLParams` the arrays. `load_iml` builds both from
-checkpoint folders (default: the shipped `heat_fit_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
+checkpoint folders (default: the shipped `heat_nocart_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
 `DEFAULT_ZOOM`).
 """
 
@@ -124,11 +124,13 @@ def check_mirror_symmetric(model, model_path) -> None:
                          f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
 
 
-# The default networks (shipped in rhaml_jax/checkpoints), chosen in session 19 on two validation
-# sets, our look and the OOD one (BENCHMARKS.md, "An out-of-distribution validation set"): made by
-# `python -m rhaml_jax.fit --robot pioneer3dx --budget-minutes 130 --from-scratch` (dense first
-# stage, luminance zoom stage). Until then `amlnet_cpu` + `zoom_cpu`, still shipped.
-DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_fit_cpu", "zoom_fit_cpu"
+# The default networks (shipped in rhaml_jax/checkpoints), chosen on two validation sets, our look
+# and the OOD one. `zoom_fit_cpu` and `heat_fit_cpu` are made by `python -m rhaml_jax.fit --robot
+# pioneer3dx --budget-minutes 130 --from-scratch` (session 19, BENCHMARKS.md "An out-of-distribution
+# validation set"); `heat_nocart_cpu` is `heat_fit_cpu` fine-tuned on v3 images without robot-like
+# carts, which had taught it to doubt near robots seen end-on (session 22, BENCHMARKS.md "Carts
+# and the end-on misses"). Before: `heat_fit_cpu`, and before that `amlnet_cpu` + `zoom_cpu`.
+DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_nocart_cpu", "zoom_fit_cpu"
 
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,

@@ -25,7 +25,7 @@ MAX_MEDIAN_DPSI_DEG = 20.0
 
 @pytest.mark.parametrize("name,config", [("amlnet_cpu", "cpu"), ("zoom_cpu", "zoom_cpu"), ("heat_cpu", "cpu_heat"),
                                          ("zoom_luma_cpu", "zoom_cpu_luma"), ("heat_fit_cpu", "cpu_heat"),
-                                         ("zoom_fit_cpu", "zoom_cpu_luma")])
+                                         ("heat_nocart_cpu", "cpu_heat"), ("zoom_fit_cpu", "zoom_cpu_luma")])
 def test_shipped_checkpoint_size_and_config(name, config):
     path = shipped_checkpoint(name)
     size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())

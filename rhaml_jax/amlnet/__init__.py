@@ -12,8 +12,9 @@ Public API:
 - counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
 - training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
-  `shipped_checkpoint(name)` (the weights in the package: "heat_fit_cpu" + "zoom_fit_cpu", the
-  default IML pair, `iml.DEFAULT_AMLNET`; "amlnet_cpu" + "zoom_cpu"; "heat_cpu" + "zoom_luma_cpu");
+  `shipped_checkpoint(name)` (the weights in the package: "heat_nocart_cpu" + "zoom_fit_cpu", the
+  default IML pair, `iml.DEFAULT_AMLNET`; "heat_fit_cpu" + "zoom_fit_cpu"; "amlnet_cpu" + "zoom_cpu";
+  "heat_cpu" + "zoom_luma_cpu");
   `ToyRectangles` is a toy source for tests only;
 
 The zoom-in stage, a small AMLNet (config task "zoom") on a crop around AMLNet's estimate, has
