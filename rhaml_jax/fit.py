@@ -3,7 +3,8 @@
   python -m rhaml_jax.fit --robot my_robot.urdf --out runs/my_robot [--budget-minutes 180] [--resume]
 
 Loads and checks the robot (URDF or mesh), generates its appearance-randomised training data,
-trains AMLNet, its zoom stage (its crop sized to the robot) and the refiner, exports them to
+trains AMLNet (its last phase without robot-like carts among the distractors), its zoom stage
+(its crop sized to the robot) and the refiner, exports them to
 DIR/networks/ (for `evaluate --amlnet/--zoom/--refiner` and the pipeline), evaluates them on
 generated circle + sine scenarios and on the held-out appearance set, and writes DIR/report.md.
 Distances are scaled to the robot's size and AMLNet and the zoom stage fine-tune the shipped

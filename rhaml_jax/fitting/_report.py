@@ -119,7 +119,8 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              "", "## Plan and wall time", "",
              f"Budget {plan.budget_minutes:g} min, size {plan.size}: {plan.images} training images with the robot and "
              f"{plan.negatives} without at {plan.width} x {plan.height}; AMLNet `{plan.amlnet_config}` {plan.amlnet_steps} "
-             f"steps of {plan.amlnet_batch}, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
+             f"steps of {plan.amlnet_batch}, then {plan.amlnet_nocart_steps} on {plan.nocart_images} + {plan.nocart_negatives} "
+             f"images without robot-like carts, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
              f"{plan.refiner_steps} steps, the first {plan.refiner_v1_steps} on {plan.refine_v1_images} plain-look (v1) images "
              f"at {plan.eval_width} x {plan.eval_height}; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
              f"Distances x {plan.scale:g} of the Pioneer's (training depths {depths[0]:.2f}-{depths[1]:.2f} m, "
@@ -130,7 +131,7 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              "", "| stage | seconds |", "| --- | --- |"]
     lines += [f"| {k} | {v:.0f} |" for k, v in state["done"].items()]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]
-    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "zoom_v1", "zoom", "refiner_v1", "refiner") if (out / "runs" / k / "metrics.png").exists()]
+    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner") if (out / "runs" / k / "metrics.png").exists()]
     lines += ["", "## Evaluation", "",
               "Over the frames with the robot in view that were detected: mean / std / median; flips: |dpsi| > 90 deg; "
               "detection over every frame. `heldout/*`: the held-out appearance set (settings outside every training "

@@ -5,9 +5,10 @@ index), trainings continue from their last checkpoint).
 DIR/
   fit.json            robot fingerprint, plan, finished stages and their seconds
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
+  data/train_nocart   v3 without robot-like carts: AMLNet's last phase (BOP)
   data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
   data/refine_v1      the refiner's plain-look (v1) images (BOP, 640 x 480)
-  runs/{amlnet,zoom_v1,zoom,refiner_v1,refiner}        training runs (checkpoints, metrics.jsonl, metrics.png)
+  runs/{amlnet,amlnet_nocart,zoom_v1,zoom,refiner_v1,refiner}   training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
   report.md, report_*.png                              the report
@@ -29,7 +30,7 @@ from rhaml_jax.fitting._plan import Plan, eval_modules
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
 REPAINT_PROB = 0.5
-STAGES = ("data", "amlnet", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
+STAGES = ("data", "amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 
 
@@ -112,22 +113,34 @@ def _mirror_flag(model) -> list[str]:
     return ["--zoom-mirror"]
 
 
+def training_looks(scale: float) -> tuple:
+    """(v3, no-cart, v1) SynthConfigs of the training data for a world `scale`: v3 is the v2
+    appearance randomisation with half the robots repainted (_plan's docstring); no-cart the same
+    without robot-like carts among the distractors (AMLNet's last phase); v1 the plain look of
+    the curriculums' first steps."""
+    from rhaml_jax.data import AppearanceConfig, SynthConfig
+
+    v3 = SynthConfig(appearance=AppearanceConfig(repaint_prob=REPAINT_PROB)).scaled(scale)
+    nocart = dataclasses.replace(v3, appearance=dataclasses.replace(v3.appearance, cart_prob=0.0))
+    return v3, nocart, SynthConfig(appearance=None).scaled(scale)
+
+
 def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: int) -> dict[str, Callable[[], None]]:
     """stage name -> a function that runs it (resumably)."""
-    from rhaml_jax.data import SynthConfig, AppearanceConfig, write_heldout, write_scenario, write_training_set
+    from rhaml_jax.data import write_heldout, write_scenario, write_training_set
 
     data, runs, nets, ev = out / "data", out / "runs", out / "networks", out / "eval"
     model = load_checked_robot(robot_spec)
     length = float(model.extents[0])
 
     def data_stage():
-        # v3: the v2 appearance randomisation with half the robots repainted (module docstring of _plan)
-        v3 = SynthConfig(appearance=AppearanceConfig(repaint_prob=REPAINT_PROB)).scaled(plan.scale)
+        v3, nocart, v1 = training_looks(plan.scale)
         write_training_set(data / "train", robot_spec, _camera(plan.width, plan.height), seed, plan.images, plan.negatives,
                            workers, cfg=v3)
+        write_training_set(data / "train_nocart", robot_spec, _camera(plan.width, plan.height), seed + 4, plan.nocart_images,
+                           plan.nocart_negatives, workers, cfg=nocart)  # amlnet_nocart_stage's
         write_training_set(data / "refine", robot_spec, _camera(plan.eval_width, plan.eval_height), seed + 1,
                            plan.refine_images, 0, workers, cfg=v3)
-        v1 = SynthConfig(appearance=None).scaled(plan.scale)  # the curriculums' plain look
         if plan.v1_images:  # zoom_v1_stage's
             write_training_set(data / "train_v1", robot_spec, _camera(plan.width, plan.height), seed + 2, plan.v1_images, 0,
                                workers, cfg=v1)
@@ -153,6 +166,13 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
     amlnet_stage = lambda: train("amlnet", plan.amlnet_config, "train", plan.amlnet_steps, plan.amlnet_batch, 8, 8,  # noqa: E731
                                  *warm(plan.amlnet_config))
+
+    def amlnet_nocart_stage():
+        """AMLNet's last phase, from the first one's weights: no robot-like carts among the
+        distractors, which taught it to reject robots seen end-on (_plan's docstring)."""
+        train("amlnet", plan.amlnet_config, "train_nocart", plan.amlnet_nocart_steps, plan.amlnet_batch, 4, 8,
+              *init_from(runs / "amlnet"), stage_dir="amlnet_nocart")
+
     zoom_args = ("--zoom-length-m", f"{length:.5f}", "--w-xy", "69.4", "526")
 
     def zoom_v1_stage():
@@ -186,9 +206,10 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
         import shutil
 
-        for name, export in (("amlnet", export_weights), ("zoom", export_weights), ("refiner", export_refiner)):
+        for name, run, export in (("amlnet", "amlnet_nocart", export_weights), ("zoom", "zoom", export_weights),
+                                  ("refiner", "refiner", export_refiner)):
             shutil.rmtree(nets / name, ignore_errors=True)  # derived from runs/: a killed export is redone whole
-            export(runs / name, nets / name)
+            export(runs / run, nets / name)
         # IML's flip probability calibrated on the training set's own validation split
         from rhaml_jax.calibrate_flips import Args as CalArgs, calibrate
 
@@ -225,7 +246,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
         write_report(out, model, plan)
 
-    return {"data": data_stage, "amlnet": amlnet_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage,
+    return {"data": data_stage, "amlnet": amlnet_stage, "amlnet_nocart": amlnet_nocart_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage,
             "refiner_v1": refiner_v1_stage, "refiner": refiner_stage,
             "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
 
