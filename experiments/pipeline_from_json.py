@@ -3,7 +3,8 @@
   python experiments/pipeline_from_json.py --set LABEL EVAL.json DATA [EVAL.json DATA ...] [--set ...]
       [--thresholds 0.5 0.4 0.3] [--out OUT.json]
 
-Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA. Per set (its
+Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA (or
+`--modules iml`: then the IML and IML+PGO rows only). Per set (its
 scenes pooled): IML and IML+IR from the stored `iml_est` / `ir_est`, IML+PGO and IML+IR+PGO refitted
 through the pipeline's own batch fusion (`pipeline.fuse_estimates`): mean abs
 dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate` scores it), flips
@@ -72,15 +73,16 @@ def main() -> None:
         flip_prob, is_flip = [], []
         for js, data in zip(rest[::2], rest[1::2]):
             rows = json.loads(Path(js).read_text())["frames"]
-            if "ir_est" not in rows[0]:
-                ap.error(f"{js}: no ir_est rows (run evaluate --modules iml,ir,pgo)")
+            if "iml_est" not in rows[0]:
+                ap.error(f"{js}: no iml_est rows (run evaluate --modules iml[,ir,pgo])")
             scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])
             det, o = np.array([r["detected"] for r in rows]), np.array([r["o"] for r in rows])
             add = lambda k, est, d=det: acc.setdefault(k, []).append((est, d, scene.observed, scene.gt))  # noqa: E731
             add("IML", np.array([r["iml_est"] for r in rows]))
-            add("IML+IR", np.array([r["ir_est"] for r in rows]))
             add("IML+PGO", fused(rows, scene, "iml_est", det))
-            add("IML+IR+PGO", fused(rows, scene, "ir_est", det))
+            if "ir_est" in rows[0]:  # an `evaluate --modules iml` run has IML's rows only
+                add("IML+IR", np.array([r["ir_est"] for r in rows]))
+                add("IML+IR+PGO", fused(rows, scene, "ir_est", det))
             for t in a.thresholds:
                 add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t), o >= t)
             k = det & scene.observed

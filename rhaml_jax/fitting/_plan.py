@@ -63,8 +63,10 @@ missed on the validation sequences 18/3/31/5 (ours) and 85/93 (OOD) -> 7/0/6/0 a
 the same fine-tune with carts gave 25/3/59/13 and 95/86 (BENCHMARKS.md, "Carts and the end-on
 misses"; the shipped default `heat_nocart_cpu`). The phase keeps that ratio: 0.3 no-cart images
 per v3 image (`NOCART_IMAGE_FRACTION`), 3/8 of a step per first-phase step
-(`NOCART_STEP_FRACTION`); the first phase keeps the carts, which keep false positives down (OOD
-background frames called positive: 15 of 100 before the fine-tune, 18 with carts, 20 without).
+(`NOCART_STEP_FRACTION`); half as many steps found the same end-on robots but read them less
+accurately (BENCHMARKS.md, "AMLNet's no-cart phase in `fit`"). The first phase keeps the carts,
+which keep false positives down (OOD background frames called positive: 15 of 100 before the
+fine-tune, 18 with carts, 20 without).
 
 The refiner always starts from random weights, and likewise learns first on plain-look images
 (a twentieth as many as the training images, at 640 x 480; 0.045 s each at 604 faces), for 2/3
