@@ -128,6 +128,19 @@ def test_bad_input_one_line_exit_2(tmp_path):
     assert not (tmp_path / "out" / "fit.json").exists()
 
 
+# the budget rule's rates (module docstring of _plan) at 604 faces: data 0.024 s per image, its tenth for the
+# refiner and 0.3 of it without carts for AMLNet's last phase, 0.045 s per v1 image of the refiner's (a
+# twentieth); AMLNet 0.9 s per step and 3/8 of a no-cart step after each
+IMG = 0.024 * 1.4 + 0.045 / 20
+STEP = 0.9 * 11 / 8
+
+
+def _planned_s(r) -> float:
+    """The seconds a Pioneer plan's counts take at those rates (compilations left out)."""
+    return ((r.images + r.negatives) * IMG + r.v1_images * 0.009 + r.amlnet_steps * STEP + r.zoom_steps * 0.1
+            + r.refiner_steps * 0.13 + 6 * r.frames * 0.32)
+
+
 def test_budget_rule():
     p = make_plan(180)
     assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
@@ -135,12 +148,7 @@ def test_budget_rule():
     # the evaluation's 16 compilations and the flip calibration's (32 s each) come off the top;
     # the shares split the rest
     F = 17 * 32.0
-    # data 15 %: 0.024 s per image, its tenth for the refiner and 0.3 of it without carts for AMLNet's
-    # last phase, 0.045 s per v1 image of the refiner's (a twentieth)
-    IMG = 0.024 * 1.4 + 0.045 / 20
-    # AMLNet 45 % at 0.9 s per step, and 3/8 of a no-cart step after each
-    STEP = 0.9 * 11 / 8
-    q = make_plan(45)  # 2700 s - F (604 faces)
+    q = make_plan(45)  # 2700 s - F: data 15 %, AMLNet 45 % (604 faces)
     assert q.images + q.negatives == int(0.15 * (2700 - F) / IMG)
     # AMLNet's last phase: 0.3 as many no-cart images (7/8 with the robot), 3/8 as many steps
     nocart = int((q.images + q.negatives) * 0.3)
@@ -163,8 +171,7 @@ def test_budget_rule():
     assert spare > 100
     assert abs(r.amlnet_steps - (0.45 * S + spare * 45 / 57) / STEP) <= 2
     assert abs(r.zoom_steps - (0.12 * S + spare * 12 / 57) / 0.1) <= 2
-    planned = (r.images + r.negatives) * IMG + r.amlnet_steps * STEP + r.zoom_steps * 0.1 + r.refiner_steps * 0.13 + 6 * r.frames * 0.32
-    assert 0.99 * S <= planned <= S
+    assert 0.99 * S <= _planned_s(r) <= S
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     # once AMLNet and the zoom stage are capped, what is left goes to the refiner, up to 6000 steps
@@ -206,9 +213,7 @@ def test_a_plan_never_spends_more_than_its_budget():
                 r = make_plan(float(budget), warm_start=warm)
             except RhamlError:
                 continue
-            planned = ((r.images + r.negatives) * (0.024 * 1.4 + 0.045 / 20) + r.v1_images * 0.009 + r.amlnet_steps * 0.9 * 11 / 8
-                       + r.zoom_steps * 0.1 + r.refiner_steps * 0.13 + 6 * r.frames * 0.32)
-            assert planned <= budget * 60 - F + 1e-6, (budget, warm, planned)
+            assert _planned_s(r) <= budget * 60 - F + 1e-6, (budget, warm, _planned_s(r))
 
 
 def test_amlnets_last_phase_has_no_carts():

@@ -229,7 +229,7 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}
     caps = CAPS_FROM_SCRATCH if curriculum else CAPS
     counts = {k: min(caps[k], int(seconds[k] / unit[k])) for k in unit}
-    for _ in range(4):  # what capped stages leave goes to the trainings below their caps, by share
+    for _ in range(3):  # what capped stages leave goes to the trainings below their caps, by share
         spare = s - sum(counts[k] * unit[k] for k in unit)
         open_ = [k for k in ("amlnet_steps", "zoom_steps") if counts[k] < caps[k]]
         if not open_:  # then to the refiner, up to its larger cap
