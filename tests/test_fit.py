@@ -247,3 +247,81 @@ def test_report_plots_a_set_where_nothing_was_detected(tmp_path):
                ("sine", "iml"): {"frames": [seen, missed]}, ("sine", "iml,ir"): {"frames": [seen]}}
     assert _plots(tmp_path, results) == ["report_trajectories.png", "report_errors.png"]
     assert (tmp_path / "report_trajectories.png").stat().st_size > 0
+
+
+def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str | None = None, resume: bool = False,
+               log_s: float = 0.0):
+    """run_fit on the Pioneer with stages that do nothing but take `slow` times the rule's seconds
+    on a fake clock (and each line it logs `log_s`); `fail_in` dies halfway through that stage, as
+    a kill would. Returns (fake seconds, stage -> the plan it ran with)."""
+    from rhaml_jax.fitting import _run
+    from rhaml_jax.fitting._plan import stage_seconds
+
+    clock, ran = [0.0], {}
+
+    def stages(out, robot_spec, plan, workers, seed):
+        def stage(name):
+            def run():
+                ran[name] = plan
+                if name == fail_in:
+                    clock[0] += 0.5 * slow * stage_seconds(plan, 604)[name]
+                    raise KeyboardInterrupt
+                clock[0] += slow * stage_seconds(plan, 604)[name]
+            return run
+        return {name: stage(name) for name in STAGES}
+
+    monkeypatch.setattr(_run, "stage_functions", stages)
+    monkeypatch.setattr(_run, "_now", lambda: clock[0])
+    try:
+        run_fit("pioneer3dx", tmp_path / "p", make_plan(budget), resume=resume,
+                log=lambda s: clock.__setitem__(0, clock[0] + log_s))
+    except KeyboardInterrupt:
+        pass
+    return clock[0], ran
+
+
+def test_a_run_behind_its_rates_is_paced_to_its_budget(tmp_path, monkeypatch):
+    """Every stage 30 % slower than the rule's rates (the 45-minute TurtleBot3 run took 18 % more
+    than its budget): from the second stage on, the later stages' counts shrink by one factor and
+    the run ends within its budget; on time, nothing changes."""
+    from rhaml_jax.fitting._plan import stage_counts
+
+    assert len(load_checked_robot("pioneer3dx").faces) == 604
+    plan = make_plan(60)
+    seconds, ran = _timed_run(tmp_path / "on_time", monkeypatch, 60, 1.0)
+    assert all(stage_counts(p) == stage_counts(plan) for p in ran.values()) and seconds <= 3600
+    seconds, ran = _timed_run(tmp_path / "slow", monkeypatch, 60, 1.3)
+    assert 0.98 * 3600 <= seconds <= 3600 + 1.0, seconds  # unpaced: 1.3 x 3600
+    # paced when the data stage came in late, by one factor; the later stages then kept to time
+    shrunk = {k: v / stage_counts(plan)[k] for k, v in stage_counts(ran["report"]).items() if stage_counts(plan)[k]}
+    assert max(shrunk.values()) < 0.85 and max(shrunk.values()) - min(shrunk.values()) < 0.02, shrunk
+    stored = json.loads((tmp_path / "slow" / "p" / "fit.json").read_text())
+    assert stored["started"] == list(STAGES) and stored["plan"]["zoom_steps"] == ran["zoom"].zoom_steps
+
+
+def test_pacing_keeps_a_begun_stages_counts_after_a_kill(tmp_path, monkeypatch):
+    """Killed halfway through the zoom stage and resumed: its training continues from its
+    checkpoint with the steps it began with, so the stage is not paced again, though the resumed
+    run is later (each of its lines about the stages it skips took a minute); the stages after it are."""
+    _, before = _timed_run(tmp_path, monkeypatch, 60, 1.2, fail_in="zoom")
+    _, after = _timed_run(tmp_path, monkeypatch, 60, 1.2, resume=True, log_s=60.0)
+    assert "amlnet" not in after and after["zoom"].zoom_steps == before["zoom"].zoom_steps
+    assert after["refiner"].refiner_steps < before["zoom"].refiner_steps
+
+
+def test_pacing_stays_between_the_minima_and_the_plan_as_made():
+    from rhaml_jax.fitting._plan import PACED_MINIMA, paced, stage_counts, stage_seconds
+
+    plan = make_plan(100, warm_start=False)
+    total = sum(stage_seconds(plan, 604).values())
+    assert paced(plan, list(STAGES[1:]), 2 * total, 1.0, 604) == (plan, 1.0)  # ahead: unchanged, not raised
+    short, f = paced(plan, list(STAGES[2:]), 60.0, 2.0, 604)  # far behind, AMLNet's first phase begun
+    assert f == 0.0 and short.amlnet_steps == plan.amlnet_steps  # not in `todo`: kept
+    assert paced(plan, list(STAGES[1:]), 60.0, 2.0, 604)[0].amlnet_steps == 2000  # from random weights AMLNet needs 2,000
+    # caught up again (time to spare at the refiner): the stages not begun get the plan's counts back, no more
+    back, f = paced(short, list(STAGES[5:]), 2 * total, 1.0, 604, first=plan)
+    assert f == 1.0 and stage_counts(back) == stage_counts(short) | {"refiner_v1": plan.refiner_v1_steps,
+                                                                     "refiner": plan.refiner_steps - plan.refiner_v1_steps,
+                                                                     "scenarios": plan.frames}
+    assert PACED_MINIMA["amlnet"] == 100 and {k: v for k, v in stage_counts(short).items() if k != "amlnet"} == {
+        k: v for k, v in PACED_MINIMA.items() if k != "amlnet"}

@@ -1,5 +1,6 @@
 """What `fit` does for a robot within a time budget: a Plan (data sizes, training steps,
-evaluation sizes), fixed once at the start and stored, so that `--resume` continues the same run.
+evaluation sizes), made at the start and stored, so that `--resume` continues the same run, and
+paced as the run goes (below).
 
 The budget rule (size "cpu": the configs of the networks that hold up best on the held-out
 appearance set, `cpu_heat` + `zoom_cpu_luma`, on v3 data: appearance randomisation with half the
@@ -77,6 +78,18 @@ curriculum for the refiner"); twice as many steps (4,000 + 2,000) were better ag
 (0.279 / 0.174), so it takes up to 6,000 steps once AMLNet and the zoom stage are capped (the
 zoom stage's heading comes first: at 131 minutes from scratch the extra steps would have cost
 it 3,400 of its 17,000).
+
+Pacing: the rates are this machine's, alone; a busier or slower machine (the 45-minute TurtleBot3
+run took 53 minutes, its data 1.3 times and AMLNet 1.2 times their planned seconds) would overrun
+the budget by as much. So before each stage begins, the finished stages' seconds are compared with
+their planned ones (`slowness`, at least 1), and if the stages left, at that many times their
+rates, do not fit in the time left, the counts of the stages not yet begun (training steps, the
+evaluation's frames) are those of the plan as made scaled down by one factor (`paced`; never
+below `PACED_MINIMA`, never above the plan as made: a later stage that finds the run caught up
+gets its counts back). A stage's counts are fixed when it begins and stored in fit.json, so that
+a killed training resumes with the steps it began with. Replayed with the 45-minute TurtleBot3
+run's measured seconds per stage, the rule ends it at 43.6 minutes instead of 53.2 (BENCHMARKS.md,
+"Pacing").
 """
 
 from __future__ import annotations
@@ -210,14 +223,18 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
                 round(counts["amlnet_steps"] * NOCART_STEP_FRACTION))
 
 
+def _mesh_rates(faces: int) -> tuple[float, ...]:
+    """Seconds per v3 image, v1 image, v1 refiner image, evaluated frame and refiner step for a
+    mesh of `faces`: the line through the two measured points, no cheaper than the smaller mesh."""
+    grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
+    return tuple(t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, V1_IMAGE_S, V1_REFINE_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
+
+
 def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     """Images, steps and frames a budget buys (module docstring); zeros when the evaluation's
     compilations take it all."""
     s = budget_s - eval_compile_s()  # what the shares split
-    # the line through the two points, no cheaper than the smaller mesh
-    grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
-    image_s, v1_s, v1_refine_s, frame_s, refiner_s = (t[0] + (t[1] - t[0]) * grow for t in (
-        IMAGE_S, V1_IMAGE_S, V1_REFINE_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
+    image_s, v1_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
     # seconds per unit of each count: the refiner's images (a tenth as many) and AMLNet's no-cart
     # ones at the training images' rate, the refiner's v1 ones (a twentieth), and the curriculum's
     # v1 images; a first-phase AMLNet step brings its share of no-cart steps; two scenarios and
@@ -254,3 +271,69 @@ def eval_compile_s(eval_sets: tuple[str, ...] = EVAL_SETS) -> float:
     """The evaluation's fixed cost: one compilation per `evaluate` run, and one for the export
     stage's flip calibration (IML on the training set's validation split)."""
     return EVAL_COMPILE_S * (sum(len(eval_modules(name)) for name in eval_sets) + 1)
+
+
+# Pacing (module docstring): the counts a stage runs, and their smallest paced values
+PACED_MINIMA = {"amlnet": MINIMA["amlnet_steps"], "amlnet_nocart": 50, "zoom_v1": 50, "zoom": 50, "refiner_v1": 25, "refiner": 25,
+                "scenarios": MINIMA["frames"]}
+MAX_SLOWNESS = 4.0  # a run this far behind its rates is a slower machine or a busy one; past it pacing would starve the rest
+
+
+def stage_counts(plan: Plan) -> dict[str, int]:
+    """stage -> the count it runs: training steps of each phase, or the evaluation's frames per set
+    (fixed when the `scenarios` stage renders them)."""
+    return {"amlnet": plan.amlnet_steps, "amlnet_nocart": plan.amlnet_nocart_steps, "zoom_v1": plan.zoom_v1_steps,
+            "zoom": plan.zoom_steps - plan.zoom_v1_steps, "refiner_v1": plan.refiner_v1_steps,
+            "refiner": plan.refiner_steps - plan.refiner_v1_steps, "scenarios": plan.frames}
+
+
+def with_counts(plan: Plan, counts: dict[str, int]) -> Plan:
+    """`plan` running `counts` (stage_counts' keys)."""
+    c = stage_counts(plan) | counts
+    return dataclasses.replace(plan, amlnet_steps=c["amlnet"], amlnet_nocart_steps=c["amlnet_nocart"], zoom_v1_steps=c["zoom_v1"],
+                               zoom_steps=c["zoom_v1"] + c["zoom"], refiner_v1_steps=c["refiner_v1"],
+                               refiner_steps=c["refiner_v1"] + c["refiner"], frames=c["scenarios"])
+
+
+def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
+    """stage -> its seconds at the rule's rates: what is fixed (the data, the compilations) and what
+    its count costs (`stage_counts`; `scenarios` is charged its frames' evaluation too, which its
+    frame count fixes, and `evaluate` its compilations)."""
+    image_s, v1_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
+    n = stage_counts(plan)
+    images = plan.images + plan.negatives + plan.nocart_images + plan.nocart_negatives + plan.refine_images
+    return {"data": images * image_s + plan.v1_images * v1_s + plan.refine_v1_images * v1_refine_s,
+            "amlnet": n["amlnet"] * RATES["amlnet_step_s"], "amlnet_nocart": n["amlnet_nocart"] * RATES["amlnet_step_s"],
+            "zoom_v1": n["zoom_v1"] * RATES["zoom_step_s"], "zoom": n["zoom"] * RATES["zoom_step_s"],
+            "refiner_v1": n["refiner_v1"] * refiner_s, "refiner": n["refiner"] * refiner_s,
+            "export": EVAL_COMPILE_S, "scenarios": n["scenarios"] * frame_s * 6,
+            "evaluate": eval_compile_s(plan.eval_sets) - EVAL_COMPILE_S, "report": 0.0}
+
+
+def slowness(plan: Plan, done: dict[str, float], faces: int) -> float:
+    """How much longer than the rule's rates the finished stages took (1 when on time or faster)."""
+    planned = stage_seconds(plan, faces)
+    timed = [k for k in done if planned.get(k, 0.0) > 0.0]
+    if not timed:
+        return 1.0
+    return min(MAX_SLOWNESS, max(1.0, sum(done[k] for k in timed) / sum(planned[k] for k in timed)))
+
+
+def paced(plan: Plan, todo: list[str], seconds_left: float, slow: float, faces: int, first: Plan | None = None) -> tuple[Plan, float]:
+    """`plan` with the counts of the stages in `todo` (those not yet begun) set to `first`'s (the
+    plan as made; default `plan`) scaled down by one factor, so that `todo` at `slow` times the
+    rates fits in `seconds_left`; none below PACED_MINIMA, none above `first`'s (a run that was
+    behind and caught up gets its counts back). Returns (plan, factor): 1 when they fit unscaled."""
+    first = plan if first is None else first
+    counts = stage_counts(first)
+    free = [k for k in todo if k in counts and counts[k] > 0]
+    plan = with_counts(plan, {k: counts[k] for k in free})
+    if plan.size == "tiny":  # test-size runs ignore the rates
+        return plan, 1.0
+    cost = stage_seconds(plan, faces)
+    need, scalable = slow * sum(cost[k] for k in todo), slow * sum(cost[k] for k in free)
+    if need <= seconds_left or scalable <= 0.0:
+        return plan, 1.0
+    f = max(0.0, 1.0 - (need - seconds_left) / scalable)
+    lo = PACED_MINIMA | ({} if plan.warm_start else {"amlnet": MINIMA_FROM_SCRATCH["amlnet_steps"]})
+    return with_counts(plan, {k: max(min(counts[k], lo[k]), int(counts[k] * f)) for k in free}), f

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rhaml_jax.fitting._plan import Plan
+from rhaml_jax.fitting._plan import Plan, stage_counts, stage_seconds
 
 
 def _fmt(v) -> str:
@@ -128,8 +128,13 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else
                 f"trained from random weights, the zoom stage's first {plan.zoom_v1_steps} steps on {plan.v1_images} "
                 "plain-look (v1) images."),
-             "", "| stage | seconds |", "| --- | --- |"]
-    lines += [f"| {k} | {v:.0f} |" for k, v in state["done"].items()]
+             "", "| stage | seconds | planned at the rule's rates |", "| --- | --- | --- |"]
+    planned = stage_seconds(plan, len(model.faces))
+    lines += [f"| {k} | {v:.0f} | {planned[k]:.0f} |" for k, v in state["done"].items()]
+    made = stage_counts(Plan.from_dict(state.get("planned", state["plan"])))
+    paced = [f"{k} {made[k]} -> {n}" for k, n in stage_counts(plan).items() if n != made[k]]
+    if paced:
+        lines += ["", f"Paced (behind the budget, the counts of stages not yet begun were scaled down): {', '.join(paced)}."]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]
     lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner") if (out / "runs" / k / "metrics.png").exists()]
     lines += ["", "## Evaluation", "",

@@ -25,13 +25,14 @@ from pathlib import Path
 from typing import Callable
 
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.fitting._plan import Plan, eval_modules
+from rhaml_jax.fitting._plan import Plan, eval_modules, paced, slowness, stage_counts
 
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
 REPAINT_PROB = 0.5
 STAGES = ("data", "amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
+_now = time.perf_counter  # the wall clock stages are timed with (tests replace it)
 
 
 def load_checked_robot(spec: str):
@@ -61,6 +62,10 @@ class FitState:
     plan: dict
     done: dict = dataclasses.field(default_factory=dict)
     """stage -> wall seconds it took"""
+    started: list = dataclasses.field(default_factory=list)
+    """stages begun, in order: their counts in `plan` are fixed (pacing changes only the later ones)"""
+    planned: dict | None = None
+    """the plan as made, before pacing (_plan's docstring)"""
 
     def save(self, path: Path) -> None:
         tmp = path.with_suffix(".json.tmp")
@@ -82,11 +87,15 @@ def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[Fi
         stored = json.loads(path.read_text())
         require_same_robot(RobotFingerprint.from_dict(stored["robot"], str(path)), fp,
                            f"--resume {out}: this run fits robot {{mine}}, not --robot {robot_spec} {{theirs}}; nothing was changed")
-        return FitState(stored["robot"], stored["plan"], stored.get("done", {})), Plan.from_dict(stored["plan"], f"{path}: plan")
+        done = stored.get("done", {})
+        # a run of a version before pacing: the stage after the finished ones may have begun
+        started = stored.get("started", [*done, *[k for k in STAGES if k not in done][:1]])
+        return (FitState(stored["robot"], stored["plan"], done, started, stored.get("planned", stored["plan"])),
+                Plan.from_dict(stored["plan"], f"{path}: plan"))
     if resume:
         raise RhamlError(f"--resume {out}: no fit run there (fit.json not found)")
     out.mkdir(parents=True, exist_ok=True)
-    state = FitState(fp.to_dict(), dataclasses.asdict(plan))
+    state = FitState(fp.to_dict(), dataclasses.asdict(plan), planned=dataclasses.asdict(plan))
     state.save(path)
     return state, plan
 
@@ -262,20 +271,43 @@ def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, worker
     as a kill would (for tests)."""
     out = Path(out)
     state, plan = open_state(out, robot_spec, plan, resume)
+    faces = len(load_checked_robot(robot_spec).faces)
     funcs = stage_functions(out, robot_spec, plan, workers, seed)
-    t0, budget = time.perf_counter(), plan.budget_minutes * 60.0
+    t0, budget = _now(), plan.budget_minutes * 60.0
     spent = sum(state.done.values())
     for k, name in enumerate(STAGES, 1):
         if name in state.done:
             log(f"[fit {k}/{len(STAGES)}] {name}: done ({state.done[name]:.0f} s), skipped")
             continue
-        used = spent + time.perf_counter() - t0
+        used = spent + _now() - t0
         log(f"[fit {k}/{len(STAGES)}] {name}: {used / 60:.1f} min used, {max(0.0, budget - used) / 60:.1f} min left of "
             f"the {plan.budget_minutes:g} min budget")
-        ts = time.perf_counter()
+        if name not in state.started:
+            plan = _pace(state, plan, name, budget - used, faces, log)
+            state.started.append(name)
+            state.save(out / "fit.json")
+            funcs = stage_functions(out, robot_spec, plan, workers, seed)
+        ts = _now()
         funcs[name]()
-        state.done[name] = round(time.perf_counter() - ts, 1)
+        state.done[name] = round(_now() - ts, 1)
         state.save(out / "fit.json")
         if name == stop_after:
             break
     return state
+
+
+def _pace(state: FitState, plan: Plan, stage: str, seconds_left: float, faces: int, log: Callable[[str], None]) -> Plan:
+    """Before `stage` begins: the plan with this and the later stages' counts scaled down when the
+    run is behind its budget (_plan's docstring, "Pacing"), stored in `state`."""
+    todo = [k for k in STAGES[STAGES.index(stage):] if k not in state.done]
+    slow = slowness(plan, state.done, faces)
+    first = Plan.from_dict(state.planned, "fit.json: planned")
+    new, f = paced(plan, todo, seconds_left, slow, faces, first)
+    before, after = stage_counts(plan), stage_counts(new)
+    changed = ", ".join(f"{'frames per evaluation set' if k == 'scenarios' else k + ' steps'} {before[k]} -> {after[k]}"
+                        for k in before if before[k] != after[k])
+    if changed:
+        log(f"[fit] paced: the finished stages took {slow:.2f}x their planned seconds; {changed} "
+            f"({f:.2f} of the plan as made)")
+    state.plan = dataclasses.asdict(new)
+    return new
