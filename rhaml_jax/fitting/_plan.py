@@ -9,8 +9,8 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 | stage | share | rate (2-core CPU) | count |
 | --- | --- | --- | --- |
-| data: v3 training images at 320 x 256, 0.3 as many without carts for AMLNet's last phase, a tenth as many at 640 x 480 for the refiner, and a twentieth as many plain-look ones at 640 x 480 for its first steps | 15 % | 0.024 s per image (the refiner's tenth included) and 0.045 s per plain-look refiner image at 604 mesh faces, 0.1 s and 0.4 s at 91,104, linear between (2 processes) | images (7/8 with the robot) |
-| amlnet: `cpu_heat`, batch 32, then 3/8 as many steps on the no-cart images | 45 % | 0.9 s per step | steps (of the first phase) |
+| data: v3 training images at 320 x 256, 0.3 as many without carts for AMLNet's last phase, a tenth as many at 640 x 480 for the refiner, and a twentieth as many plain-look ones at 640 x 480 for its first steps | 15 % | per image at 604 mesh faces: 0.029 s (320 x 256), 0.122 s (the refiner's, 640 x 480), 0.05 s (its plain-look ones); at 91,104 faces 0.136, 0.26 and 0.13 s; linear between (2 processes) | images (7/8 with the robot) |
+| amlnet: `cpu_heat`, batch 32, then 3/8 as many steps on the no-cart images | 45 % | 1.1 s per step (compilation and validation included) | steps (of the first phase) |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
 | evaluation: scenarios, held-out set, evaluate | 18 % | 0.32 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
@@ -26,10 +26,11 @@ their shares, up to their caps, and then to the refiner: the budget is spent on 
 left unused.
 
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
-points measured on this machine, the built-in Pioneer (604 faces, the from-scratch 110-minute
-run alone on the machine: 41 training images/s, 0.13 s per refiner step, 0.32 s per evaluated
-frame) and the TurtleBot3 Burger URDF (91,104 faces: 10 images/s, 0.5 s per refiner step, 1.17
-s per evaluated frame), joined by a line (BENCHMARKS.md, "Your own robot").
+points measured on this machine, the built-in Pioneer (604 faces: 0.13 s per refiner step and
+0.32 s per evaluated frame in the from-scratch 110-minute run; the images' rates in the 163-minute
+one of session 23) and the TurtleBot3 Burger URDF (91,104 faces: 0.5 s per refiner step, 1.17 s
+per evaluated frame; the images in the 45-minute run of session 23), joined by a line
+(BENCHMARKS.md, "Your own robot" and "Pacing").
 
 Every distance of the robot's world is scaled by `RobotModel.world_scale`: the robot's length over
 the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
@@ -46,7 +47,7 @@ steps when fine-tuning, 2,000 from scratch; 1,000 images) makes the budget too s
 says so and the smallest budget that would do, before it starts anything.
 
 From scratch (`warm_start` False) the data stage also renders half as many plain-look (v1)
-images (0.009 s each at 604 faces, measured; at 91,104 assumed as slow as v3 ones, since the
+images (0.015 s each at 604 faces, measured; at 91,104 assumed as slow as v3 ones, since the
 mesh dominates) and the zoom stage spends its first 12/17 on them (`zoom_v1_steps`), the rest
 on v3 and v1 images together, with its cap raised to 17,000 steps: from random weights on v3
 images the zoom stage found no front/back in 10,000 steps; on v1 images it did, better the longer
@@ -70,7 +71,7 @@ which keep false positives down (OOD background frames called positive: 15 of 10
 fine-tune, 18 with carts, 20 without).
 
 The refiner always starts from random weights, and likewise learns first on plain-look images
-(a twentieth as many as the training images, at 640 x 480; 0.045 s each at 604 faces), for 2/3
+(a twentieth as many as the training images, at 640 x 480; 0.05 s each at 604 faces), for 2/3
 of its steps, then on the v3 ones from those weights: chosen on the validation splits (eq. 8's
 point-matching loss after four test-time iterations, v3 / v1): v3 alone 0.339 / 0.298, v1 then
 v3 0.310 / 0.198, v1 then v3 + v1 0.346 / 0.169, v1 alone 0.628 / 0.170 (BENCHMARKS.md, "A
@@ -79,17 +80,16 @@ curriculum for the refiner"); twice as many steps (4,000 + 2,000) were better ag
 zoom stage's heading comes first: at 131 minutes from scratch the extra steps would have cost
 it 3,400 of its 17,000).
 
-Pacing: the rates are this machine's, alone; a busier or slower machine (the 45-minute TurtleBot3
-run took 53 minutes, its data 1.3 times and AMLNet 1.2 times their planned seconds) would overrun
-the budget by as much. So before each stage begins, the finished stages' seconds are compared with
+Pacing: the rates are this machine's, alone; a busier or slower machine, or a rate measured
+wrong, overruns the budget by as much. So before each stage begins, the finished stages' seconds are compared with
 their planned ones (`slowness`, at least 1), and if the stages left, at that many times their
 rates, do not fit in the time left, the counts of the stages not yet begun (training steps, the
 evaluation's frames) are those of the plan as made scaled down by one factor (`paced`; never
 below `PACED_MINIMA`, never above the plan as made: a later stage that finds the run caught up
 gets its counts back). A stage's counts are fixed when it begins and stored in fit.json, so that
-a killed training resumes with the steps it began with. Replayed with the 45-minute TurtleBot3
-run's measured seconds per stage, the rule ends it at 43.6 minutes instead of 53.2 (BENCHMARKS.md,
-"Pacing").
+a killed training resumes with the steps it began with. The 45-minute TurtleBot3 run took 53.2
+minutes with the rates before session 24; replayed at its measured speed per stage through today's
+rates, 47.9 minutes unpaced and 46.3 paced (BENCHMARKS.md, "Pacing").
 """
 
 from __future__ import annotations
@@ -101,13 +101,14 @@ from typing import Literal
 from rhaml_jax.errors import RhamlError
 
 SHARES = {"data": 0.15, "amlnet": 0.45, "zoom": 0.12, "refiner": 0.10, "evaluation": 0.18}
-RATES = {"amlnet_step_s": 0.9, "zoom_step_s": 0.1}
+RATES = {"amlnet_step_s": 1.1, "zoom_step_s": 0.1}
 # seconds per image, per evaluated frame and per refiner step: the line through the two measured points above
 MEASURED_FACES = (604, 91_104)
-IMAGE_S = (0.024, 1 / 10)
-V1_IMAGE_S = (0.009, 1 / 10)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
-V1_REFINE_IMAGE_S = (0.045, 0.4)  # v1 at 640 x 480 (measured 0.09 s with one process beside a training); 4x the
-#                                   320 x 256 rate at 91,104 faces
+# measured in the from-scratch Pioneer run and the 45-minute TurtleBot3 run of session 23 (BENCHMARKS.md, "Pacing")
+IMAGE_S = (0.029, 0.136)  # v3 at 320 x 256 (with or without carts)
+V1_IMAGE_S = (0.015, 0.136)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
+REFINE_IMAGE_S = (0.122, 0.26)  # v3 at 640 x 480, the refiner's
+V1_REFINE_IMAGE_S = (0.05, 0.13)  # v1 at 640 x 480
 EVAL_FRAME_S = (0.32, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
@@ -224,22 +225,22 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
 
 
 def _mesh_rates(faces: int) -> tuple[float, ...]:
-    """Seconds per v3 image, v1 image, v1 refiner image, evaluated frame and refiner step for a
+    """Seconds per v3 image, v1 image, v3 and v1 refiner image, evaluated frame and refiner step for a
     mesh of `faces`: the line through the two measured points, no cheaper than the smaller mesh."""
     grow = max(faces - MEASURED_FACES[0], 0) / (MEASURED_FACES[1] - MEASURED_FACES[0])
-    return tuple(t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, V1_IMAGE_S, V1_REFINE_IMAGE_S, EVAL_FRAME_S, REFINER_STEP_S))
+    return tuple(t[0] + (t[1] - t[0]) * grow for t in (IMAGE_S, V1_IMAGE_S, REFINE_IMAGE_S, V1_REFINE_IMAGE_S, EVAL_FRAME_S,
+                                                       REFINER_STEP_S))
 
 
 def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     """Images, steps and frames a budget buys (module docstring); zeros when the evaluation's
     compilations take it all."""
     s = budget_s - eval_compile_s()  # what the shares split
-    image_s, v1_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
-    # seconds per unit of each count: the refiner's images (a tenth as many) and AMLNet's no-cart
-    # ones at the training images' rate, the refiner's v1 ones (a twentieth), and the curriculum's
-    # v1 images; a first-phase AMLNet step brings its share of no-cart steps; two scenarios and
+    image_s, v1_s, refine_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
+    # seconds per unit of each count: AMLNet's no-cart images (0.3 as many), the refiner's v3 and
+    # v1 ones (a tenth and a twentieth, at 640 x 480), and the curriculum's v1 images; a first-phase AMLNet step brings its share of no-cart steps; two scenarios and
     # four held-out parts of about the same size, each evaluated
-    unit = {"images": image_s * (1.1 + NOCART_IMAGE_FRACTION) + v1_refine_s / 20 + (V1_FRACTION * v1_s if curriculum else 0.0),
+    unit = {"images": image_s * (1 + NOCART_IMAGE_FRACTION) + refine_s / 10 + v1_refine_s / 20 + (V1_FRACTION * v1_s if curriculum else 0.0),
             "amlnet_steps": RATES["amlnet_step_s"] * (1 + NOCART_STEP_FRACTION), "zoom_steps": RATES["zoom_step_s"],
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
@@ -299,10 +300,10 @@ def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
     """stage -> its seconds at the rule's rates: what is fixed (the data, the compilations) and what
     its count costs (`stage_counts`; `scenarios` is charged its frames' evaluation too, which its
     frame count fixes, and `evaluate` its compilations)."""
-    image_s, v1_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
+    image_s, v1_s, refine_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
     n = stage_counts(plan)
-    images = plan.images + plan.negatives + plan.nocart_images + plan.nocart_negatives + plan.refine_images
-    return {"data": images * image_s + plan.v1_images * v1_s + plan.refine_v1_images * v1_refine_s,
+    images = plan.images + plan.negatives + plan.nocart_images + plan.nocart_negatives
+    return {"data": images * image_s + plan.refine_images * refine_s + plan.v1_images * v1_s + plan.refine_v1_images * v1_refine_s,
             "amlnet": n["amlnet"] * RATES["amlnet_step_s"], "amlnet_nocart": n["amlnet_nocart"] * RATES["amlnet_step_s"],
             "zoom_v1": n["zoom_v1"] * RATES["zoom_step_s"], "zoom": n["zoom"] * RATES["zoom_step_s"],
             "refiner_v1": n["refiner_v1"] * refiner_s, "refiner": n["refiner"] * refiner_s,
