@@ -315,7 +315,7 @@ def test_pacing_keeps_a_begun_stages_counts_after_a_kill(tmp_path, monkeypatch):
 def test_pacing_stays_between_the_minima_and_the_plan_as_made():
     from rhaml_jax.fitting._plan import PACED_MINIMA, paced, stage_counts, stage_seconds
 
-    plan = make_plan(100, warm_start=False)
+    plan = make_plan(120, warm_start=False)
     total = sum(stage_seconds(plan, 604).values())
     assert paced(plan, list(STAGES[1:]), 2 * total, 1.0, 604) == (plan, 1.0)  # ahead: unchanged, not raised
     short, f = paced(plan, list(STAGES[2:]), 60.0, 2.0, 604)  # far behind, AMLNet's first phase begun
