@@ -41,7 +41,11 @@ def check_finite(name: str, array) -> None:
 
 
 def run_cli(main: Callable[[], object]) -> None:
-    """Runs a command's `main`; user errors print one line and exit 2."""
+    """Runs a command's `main`, with compiled programs kept on disk (`rhaml_jax.compile_cache`);
+    user errors print one line and exit 2."""
+    from rhaml_jax.compile_cache import enable_compile_cache
+
+    enable_compile_cache()
     try:
         main()
     except RhamlError as e:

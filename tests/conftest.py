@@ -10,6 +10,19 @@ import pytest
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
+def pytest_configure(config):
+    """Compiled programs kept on disk (`rhaml_jax.compile_cache`) in pytest's cache folder: many
+    tests compile the same program for networks or models of their own, and a second run loads
+    every program the first compiled. RHAML_JAX_CACHE_DIR=off turns it off here too."""
+    import os
+
+    from rhaml_jax.compile_cache import CACHE_ENV, enable_compile_cache
+
+    if os.environ.get(CACHE_ENV, "").lower() != "off" and config.cache is not None:
+        os.environ.setdefault(CACHE_ENV, str(config.cache.mkdir("xla")))
+    enable_compile_cache()
+
+
 def shared_path(*parts: str) -> Path:
     """A path under ../shared/data; skips the test with a reason when it is absent."""
     p = SHARED_DATA.joinpath(*parts)
