@@ -81,12 +81,12 @@ zoom stage's heading comes first: at 131 minutes from scratch the extra steps wo
 it 3,400 of its 17,000).
 
 Pacing: the rates are this machine's, alone; a busier or slower machine, or a rate measured
-wrong, overruns the budget by as much. So before each stage begins, the finished stages' seconds are compared with
-their planned ones (`slowness`, at least 1), and if the stages left, at that many times their
-rates, do not fit in the time left, the counts of the stages not yet begun (training steps, the
-evaluation's frames) are those of the plan as made scaled down by one factor (`paced`; never
-below `PACED_MINIMA`, never above the plan as made: a later stage that finds the run caught up
-gets its counts back). A stage's counts are fixed when it begins and stored in fit.json, so that
+wrong, overruns the budget by as much. So before each stage begins, the finished stages' seconds
+are compared with their planned ones (`slowness`, at least 1), and if the stages left, at that
+many times their rates, do not fit in the time left, the counts of the stages not yet begun
+(training steps, the evaluation's frames) are those of the plan as made scaled down by one
+factor (`paced`; never below `PACED_MINIMA`, never above the plan as made: a later stage that
+finds the run caught up gets its counts back). A stage's counts are fixed when it begins and stored in fit.json, so that
 a killed training resumes with the steps it began with. The 45-minute TurtleBot3 run took 53.2
 minutes with the rates before session 24; replayed at its measured speed per stage through today's
 rates, 47.9 minutes unpaced and 46.3 paced (BENCHMARKS.md, "Pacing").
@@ -237,10 +237,12 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     compilations take it all."""
     s = budget_s - eval_compile_s()  # what the shares split
     image_s, v1_s, refine_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
-    # seconds per unit of each count: AMLNet's no-cart images (0.3 as many), the refiner's v3 and
-    # v1 ones (a tenth and a twentieth, at 640 x 480), and the curriculum's v1 images; a first-phase AMLNet step brings its share of no-cart steps; two scenarios and
-    # four held-out parts of about the same size, each evaluated
-    unit = {"images": image_s * (1 + NOCART_IMAGE_FRACTION) + refine_s / 10 + v1_refine_s / 20 + (V1_FRACTION * v1_s if curriculum else 0.0),
+    # seconds per unit of each count: an image brings AMLNet's no-cart ones (0.3 as many), the
+    # refiner's v3 and v1 ones (a tenth and a twentieth, at 640 x 480) and the curriculum's v1 ones;
+    # a first-phase AMLNet step brings its share of no-cart steps; two scenarios and four held-out
+    # parts of about the same size, each evaluated
+    unit = {"images": (image_s * (1 + NOCART_IMAGE_FRACTION) + refine_s / 10 + v1_refine_s / 20
+                       + (V1_FRACTION * v1_s if curriculum else 0.0)),
             "amlnet_steps": RATES["amlnet_step_s"] * (1 + NOCART_STEP_FRACTION), "zoom_steps": RATES["zoom_step_s"],
             "refiner_steps": refiner_s, "frames": frame_s * 6}
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
