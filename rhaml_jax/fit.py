@@ -10,8 +10,10 @@ generated circle + sine scenarios and on the held-out appearance set, and writes
 Distances are scaled to the robot's size and AMLNet and the zoom stage fine-tune the shipped
 Pioneer networks (heat_cpu, zoom_luma_cpu) unless --from-scratch (`rhaml_jax.fitting._plan`):
 then the zoom stage learns on plain-look images first, where it finds the front/back cue.
-The budget is split between the stages by the rule in `rhaml_jax.fitting._plan`; killed
-anywhere, `--resume` continues (finished stages are skipped, trainings resume exactly).
+The budget is split between the stages by the rule in `rhaml_jax.fitting._plan`, and a run
+that falls behind is paced (the stages not yet begun get fewer steps or frames); killed
+anywhere, `--resume` continues (finished stages are skipped, trainings resume exactly, and the
+killed attempt's time still counts).
 """
 
 from __future__ import annotations

@@ -252,15 +252,16 @@ def test_report_plots_a_set_where_nothing_was_detected(tmp_path):
     assert (tmp_path / "report_trajectories.png").stat().st_size > 0
 
 
-def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str | None = None, resume: bool = False,
-               log_s: float = 0.0):
+def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str | None = None, resume: bool = False):
     """run_fit on the Pioneer with stages that do nothing but take `slow` times the rule's seconds
-    on a fake clock (and each line it logs `log_s`); `fail_in` dies halfway through that stage, as
-    a kill would. Returns (fake seconds, stage -> the plan it ran with)."""
+    on a fake clock; `fail_in` writes a file halfway through that stage and dies, as a kill would.
+    Returns (fake seconds, stage -> the plan it ran with, the state)."""
     from rhaml_jax.fitting import _run
     from rhaml_jax.fitting._plan import stage_seconds
 
-    clock, ran = [0.0], {}
+    # the epoch's seconds, as file times are; a resumed run starts hours after the last attempt began
+    begun = json.loads((tmp_path / "p" / "fit.json").read_text())["begun"] if resume else {"": 1.7e9 - 1e4}
+    clock, ran = [max(begun.values()) + 1e4], {}
 
     def stages(out, robot_spec, plan, workers, seed):
         def stage(name):
@@ -268,6 +269,8 @@ def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str |
                 ran[name] = plan
                 if name == fail_in:
                     clock[0] += 0.5 * slow * stage_seconds(plan, 604)[name]
+                    (out / f"{name}.part").write_text("")
+                    os.utime(out / f"{name}.part", (clock[0], clock[0]))
                     raise KeyboardInterrupt
                 clock[0] += slow * stage_seconds(plan, 604)[name]
             return run
@@ -275,12 +278,12 @@ def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str |
 
     monkeypatch.setattr(_run, "stage_functions", stages)
     monkeypatch.setattr(_run, "_now", lambda: clock[0])
+    t0, state = clock[0], None
     try:
-        run_fit("pioneer3dx", tmp_path / "p", make_plan(budget), resume=resume,
-                log=lambda s: clock.__setitem__(0, clock[0] + log_s))
+        state = run_fit("pioneer3dx", tmp_path / "p", make_plan(budget), resume=resume, log=lambda s: None)
     except KeyboardInterrupt:
         pass
-    return clock[0], ran
+    return clock[0] - t0, ran, state
 
 
 def test_a_run_behind_its_rates_is_paced_to_its_budget(tmp_path, monkeypatch):
@@ -291,9 +294,9 @@ def test_a_run_behind_its_rates_is_paced_to_its_budget(tmp_path, monkeypatch):
 
     assert len(load_checked_robot("pioneer3dx").faces) == 604
     plan = make_plan(60)
-    seconds, ran = _timed_run(tmp_path / "on_time", monkeypatch, 60, 1.0)
+    seconds, ran, _ = _timed_run(tmp_path / "on_time", monkeypatch, 60, 1.0)
     assert all(stage_counts(p) == stage_counts(plan) for p in ran.values()) and seconds <= 3600
-    seconds, ran = _timed_run(tmp_path / "slow", monkeypatch, 60, 1.3)
+    seconds, ran, _ = _timed_run(tmp_path / "slow", monkeypatch, 60, 1.3)
     assert 0.98 * 3600 <= seconds <= 3600 + 1.0, seconds  # unpaced: 1.3 x 3600
     # paced when the data stage came in late, by one factor; the later stages then kept to time
     shrunk = {k: v / stage_counts(plan)[k] for k, v in stage_counts(ran["report"]).items() if stage_counts(plan)[k]}
@@ -302,14 +305,20 @@ def test_a_run_behind_its_rates_is_paced_to_its_budget(tmp_path, monkeypatch):
     assert stored["started"] == list(STAGES) and stored["plan"]["zoom_steps"] == ran["zoom"].zoom_steps
 
 
-def test_pacing_keeps_a_begun_stages_counts_after_a_kill(tmp_path, monkeypatch):
-    """Killed halfway through the zoom stage and resumed: its training continues from its
-    checkpoint with the steps it began with, so the stage is not paced again, though the resumed
-    run is later (each of its lines about the stages it skips took a minute); the stages after it are."""
-    _, before = _timed_run(tmp_path, monkeypatch, 60, 1.2, fail_in="zoom")
-    _, after = _timed_run(tmp_path, monkeypatch, 60, 1.2, resume=True, log_s=60.0)
+def test_a_killed_stage_keeps_its_counts_and_its_time(tmp_path, monkeypatch):
+    """Killed halfway through the zoom stage and resumed hours later: its training continues from
+    its checkpoint with the steps it began with, so the stage is not paced again, though the
+    half it ran before the kill (up to its last file) now counts as used and the stages after it
+    are cut; the stage's recorded seconds are both attempts', not the wait between them."""
+    from rhaml_jax.fitting._plan import stage_seconds
+
+    _, before, _ = _timed_run(tmp_path, monkeypatch, 60, 1.2, fail_in="zoom")
+    _, after, state = _timed_run(tmp_path, monkeypatch, 60, 1.2, resume=True)
     assert "amlnet" not in after and after["zoom"].zoom_steps == before["zoom"].zoom_steps
     assert after["refiner"].refiner_steps < before["zoom"].refiner_steps
+    zoom_s = 1.2 * stage_seconds(before["zoom"], 604)["zoom"]
+    assert state.lost == {"zoom": pytest.approx(0.5 * zoom_s, abs=0.1)}
+    assert state.done["zoom"] == pytest.approx(1.5 * zoom_s, abs=0.2)
 
 
 def test_pacing_stays_between_the_minima_and_the_plan_as_made():

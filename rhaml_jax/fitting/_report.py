@@ -135,6 +135,9 @@ def write_report(out: Path, model, plan: Plan) -> Path:
     paced = [f"{k} {made[k]} -> {n}" for k, n in stage_counts(plan).items() if n != made[k]]
     if paced:
         lines += ["", f"Paced (behind the budget, the counts of stages not yet begun were scaled down): {', '.join(paced)}."]
+    if state.get("lost"):
+        lines += ["", "Killed and resumed; the seconds above include each killed attempt's, up to its last file: "
+                  + ", ".join(f"{k} {v:.0f} s" for k, v in state["lost"].items()) + "."]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]
     lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner") if (out / "runs" / k / "metrics.png").exists()]
     lines += ["", "## Evaluation", "",

@@ -3,7 +3,8 @@ skipped by `--resume`; one that was killed is run again (data are pure functions
 index), trainings continue from their last checkpoint).
 
 DIR/
-  fit.json            robot fingerprint, plan, finished stages and their seconds
+  fit.json            robot fingerprint, the plan (as made and as paced), stages begun and finished,
+                      and their seconds (a killed attempt's included, up to its last file)
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
   data/train_nocart   v3 without robot-like carts: AMLNet's last phase (BOP)
   data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
@@ -32,7 +33,7 @@ WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # confi
 REPAINT_PROB = 0.5
 STAGES = ("data", "amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
-_now = time.perf_counter  # the wall clock stages are timed with (tests replace it)
+_now = time.time  # the wall clock stages are timed with, comparable with file times (tests replace it)
 
 
 def load_checked_robot(spec: str):
@@ -66,6 +67,11 @@ class FitState:
     """stages begun, in order: their counts in `plan` are fixed (pacing changes only the later ones)"""
     planned: dict | None = None
     """the plan as made, before pacing (_plan's docstring)"""
+    begun: dict = dataclasses.field(default_factory=dict)
+    """stage -> wall clock (s since the epoch) when its latest attempt began"""
+    lost: dict = dataclasses.field(default_factory=dict)
+    """stage -> seconds it ran in attempts that were killed, each up to its last output file
+    (counted in `done` once it finishes: the wall time of a run that was killed and resumed)"""
 
     def save(self, path: Path) -> None:
         tmp = path.with_suffix(".json.tmp")
@@ -90,7 +96,8 @@ def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[Fi
         done = stored.get("done", {})
         # a run of a version before pacing: the stage after the finished ones may have begun
         started = stored.get("started", [*done, *[k for k in STAGES if k not in done][:1]])
-        return (FitState(stored["robot"], stored["plan"], done, started, stored.get("planned", stored["plan"])),
+        return (FitState(stored["robot"], stored["plan"], done, started, stored.get("planned", stored["plan"]),
+                         stored.get("begun", {}), stored.get("lost", {})),
                 Plan.from_dict(stored["plan"], f"{path}: plan"))
     if resume:
         raise RhamlError(f"--resume {out}: no fit run there (fit.json not found)")
@@ -273,13 +280,16 @@ def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, worker
     state, plan = open_state(out, robot_spec, plan, resume)
     faces = len(load_checked_robot(robot_spec).faces)
     funcs = stage_functions(out, robot_spec, plan, workers, seed)
-    t0, budget = _now(), plan.budget_minutes * 60.0
-    spent = sum(state.done.values())
+    budget = plan.budget_minutes * 60.0
     for k, name in enumerate(STAGES, 1):
         if name in state.done:
             log(f"[fit {k}/{len(STAGES)}] {name}: done ({state.done[name]:.0f} s), skipped")
             continue
-        used = spent + _now() - t0
+        if name in state.begun:  # killed in an earlier attempt: what it ran then counts
+            ran = _ran_before_kill(out, state.begun[name])
+            state.lost[name] = round(state.lost.get(name, 0.0) + ran, 1)
+            log(f"[fit] {name}: its attempt killed after {ran:.0f} s counts towards its time")
+        used = sum(state.done.values()) + sum(v for s, v in state.lost.items() if s not in state.done)
         log(f"[fit {k}/{len(STAGES)}] {name}: {used / 60:.1f} min used, {max(0.0, budget - used) / 60:.1f} min left of "
             f"the {plan.budget_minutes:g} min budget")
         if name not in state.started:
@@ -287,13 +297,28 @@ def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, worker
             state.started.append(name)
             state.save(out / "fit.json")
             funcs = stage_functions(out, robot_spec, plan, workers, seed)
-        ts = _now()
+        ts = state.begun[name] = _now()
+        state.save(out / "fit.json")
         funcs[name]()
-        state.done[name] = round(_now() - ts, 1)
+        state.done[name] = round(state.lost.get(name, 0.0) + _now() - ts, 1)
         state.save(out / "fit.json")
         if name == stop_after:
             break
     return state
+
+
+def _ran_before_kill(out: Path, begun: float) -> float:
+    """Seconds a killed attempt that began at `begun` ran, up to the newest file it wrote under
+    `out` (fit.json aside): every stage writes as it goes (images, metrics, checkpoints, results)."""
+    newest = begun
+    for root, _, names in os.walk(out):
+        for n in names:
+            if n != "fit.json":
+                try:
+                    newest = max(newest, os.stat(os.path.join(root, n)).st_mtime)
+                except OSError:  # removed while we looked
+                    pass
+    return newest - begun
 
 
 def _pace(state: FitState, plan: Plan, stage: str, seconds_left: float, faces: int, log: Callable[[str], None]) -> Plan:
