@@ -1,6 +1,6 @@
-"""Where IML's front/back flips are: by the view (the angle between the observed robot's heading
-and the line of sight: 0 deg, its back faces the camera; 180 deg, its front) and by range, from
-stored `evaluate --json` output (no network runs here).
+"""Where IML's front/back flips are, in finer bins than `evaluate`'s `iml_flips_by_view`: by the
+view (`metrics.view_deg`: 0 deg, the robot's back faces the camera; 180 deg, its front) and by
+range, from stored `evaluate --json` output (no network runs here).
 
     python experiments/flips_by_view.py LABEL=EVAL.json [LABEL=EVAL.json ...] [--out OUT.json]
 """
@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 
-from rhaml_jax.metrics import flipped
+from rhaml_jax.metrics import flipped, view_deg
 
 VIEW_BINS_DEG = (0, 30, 60, 90, 120, 150, 180)
 RANGE_BINS_M = (0, 3, 4, 5, 6, 100)
@@ -25,8 +25,7 @@ def flips_by_view(frames: list[dict]) -> dict:
     est = np.array([f["iml_est"] for f in seen], float).reshape(-1, 3)
     gt = np.array([f["gt"] for f in seen], float).reshape(-1, 3)
     flip = np.asarray(flipped(est[:, 2], gt[:, 2]), bool)
-    bearing = np.arctan2(gt[:, 1], gt[:, 0])
-    view = np.degrees(np.abs(np.angle(np.exp(1j * (gt[:, 2] - bearing)))))
+    view = view_deg(gt)
     rng = np.hypot(gt[:, 0], gt[:, 1])
 
     def binned(x, edges):

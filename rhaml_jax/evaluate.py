@@ -157,11 +157,13 @@ def run(args: Args) -> dict:
           "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
           "scenes": len(runs)}
     rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
-    if model.iml.zoom is not None:  # how well IML's flip_prob predicts its flips (zoom.calibration_metrics)
-        from rhaml_jax.metrics import flipped
+    from rhaml_jax.metrics import flipped, flips_by_view
+
+    seen = [r for r in rows if r["observed"] and r["detected"]]  # IML's flips: where, and how well flip_prob predicts them
+    m["iml_flips_by_view"] = flips_by_view([r["iml_est"][2] for r in seen], [r["gt"] for r in seen])
+    if model.iml.zoom is not None:  # (zoom.calibration_metrics)
         from rhaml_jax.zoom import calibration_metrics
 
-        seen = [r for r in rows if r["observed"] and r["detected"]]
         m["iml_flip"] = calibration_metrics([r["iml_flip_prob"] for r in seen],
                                             flipped([r["iml_est"][2] for r in seen], [r["gt"][2] for r in seen]))
         m["iml_flip"]["calibrated"] = model.iml.flip_calibration is not None

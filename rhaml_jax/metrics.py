@@ -11,7 +11,8 @@ import numpy as np
 
 from rhaml_jax.frames import se3_from_xypsi, wrap_angle
 
-__all__ = ["DETECTION_THRESHOLD", "FLIP_DEG", "abs_errors", "ate", "detection_counts", "flipped", "frame_summary", "summarize"]
+__all__ = ["DETECTION_THRESHOLD", "FLIP_DEG", "VIEWS_DEG", "abs_errors", "ate", "detection_counts", "flipped", "flips_by_view",
+           "frame_summary", "summarize", "view_deg"]
 
 DETECTION_THRESHOLD = 0.5  # o >= this: the robot is called in view (everywhere: evaluate, training metrics)
 FLIP_DEG = 90.0  # a heading error beyond this is a front/back flip (every table and calibration)
@@ -21,6 +22,29 @@ def flipped(est_psi, gt_psi) -> np.ndarray:
     """(N,) bool: the estimate's heading is off by more than FLIP_DEG."""
     d = np.angle(np.exp(1j * (np.asarray(est_psi, np.float64) - np.asarray(gt_psi, np.float64))))
     return np.abs(d) > np.deg2rad(FLIP_DEG)
+
+
+VIEWS_DEG = {"back": (0.0, 30.0), "side": (30.0, 150.0), "front": (150.0, 180.0)}
+"""the observed robot's view (the angle between its heading and the line of sight from the camera:
+0 deg, its back faces the camera; 180 deg, its front) -> [lo, hi) (the last closed)"""
+
+
+def view_deg(gt_xypsi) -> np.ndarray:
+    """(N,) the view (VIEWS_DEG) of observed robots at planar poses (N, 3) in the observer's frame."""
+    g = np.asarray(gt_xypsi, np.float64).reshape(-1, 3)
+    return np.degrees(np.abs(np.angle(np.exp(1j * (g[:, 2] - np.arctan2(g[:, 1], g[:, 0]))))))
+
+
+def flips_by_view(est_psi, gt_xypsi) -> dict:
+    """{"back" | "side" | "front": [flips, frames]}: where the front/back flips are. Networks that
+    read the robot's front from its paint flip its back views under a paint they never saw
+    (BENCHMARKS.md, "Where the held-out flips are"), which the total alone hides."""
+    flip, view = flipped(est_psi, np.asarray(gt_xypsi, np.float64).reshape(-1, 3)[:, 2]), view_deg(gt_xypsi)
+    out = {}
+    for name, (lo, hi) in VIEWS_DEG.items():
+        sel = (view >= lo) & ((view < hi) | (hi == 180.0))
+        out[name] = [int(flip[sel].sum()), int(sel.sum())]
+    return out
 
 
 def detection_counts(o, observed) -> dict:

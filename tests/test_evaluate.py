@@ -54,6 +54,10 @@ def test_estimates_and_metrics_match_a_direct_call(setup):
     assert m["detection"] == {"tp": int((det & obs).sum()), "fp": int((det & ~obs).sum()),
                               "fn": int((~det & obs).sum()), "tn": int((~det & ~obs).sum())}
     assert m["frames"] == len(frames) and m["fps"] > 0
+    seen = det & obs
+    gt_seen = np.array([f.xypsi for f, s in zip(frames, seen) if s]).reshape(-1, 3)
+    assert m["iml_flips_by_view"] == metrics.flips_by_view(est[seen, 2], gt_seen)
+    assert sum(n for _, n in m["iml_flips_by_view"].values()) == int(seen.sum())
 
 
 def test_bad_input(setup, tmp_path):

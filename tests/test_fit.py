@@ -63,6 +63,7 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     assert (out / "report_trajectories.png").stat().st_size > 1000
     # the flip probability's quality per set (a tiny run has too few validation frames to calibrate it)
     assert "## Flip probability" in report and "raw front/back ranking (not calibrated)" in report
+    assert "| back / side / front views |" in report and "| circle | " in report.split("## Flip probability")[1]
     # the TurtleBot's world is 0.39 of the Pioneer's: the circle 2.5-6.5 m becomes 0.98-2.54 m
     assert "Distances x 0.39" in report
     frames = json.loads((out / "eval/results/circle_iml.json").read_text())["frames"]

@@ -92,13 +92,17 @@ def _flip_lines(out: Path, results: dict) -> list[str]:
              (f"IML's flip probability: sigmoid({cal['a']:.3f} + {cal['b']:.3f} r) of the zoom stage's front/back ranking r, "
               f"fitted on {cal['frames']} detected frames ({cal['flips']} flipped) of {cal['source']}."
               if cal else "IML's flip probability is the zoom stage's raw front/back ranking (not calibrated)."),
-             "", "| data | flips | mean probability | Brier | ECE | ROC area |", "| --- | --- | --- | --- | --- | --- |"]
+             "Flips by the robot's view (`metrics.flips_by_view`; back: its back faces the camera): a network that reads "
+             "the front from the paint flips the back views of a paint it never saw.",
+             "", "| data | flips | back / side / front views | mean probability | Brier | ECE | ROC area |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     f = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
     for (name, modules), res in results.items():
-        m = res["metrics"].get("iml_flip")
+        m, views = res["metrics"].get("iml_flip"), res["metrics"].get("iml_flips_by_view", {})
+        by_view = " / ".join(f"{k} {n} of {t}" for k, (n, t) in views.items())
         if modules == "iml" and m and m["frames"]:
-            lines.append(f"| {name} | {m['flips']} / {m['frames']} | {f(m['mean_prob'])} | {f(m['brier'])} | {f(m['ece'])} "
-                         f"| {f(m['auroc'])} |")
+            lines.append(f"| {name} | {m['flips']} / {m['frames']} | {by_view} | {f(m['mean_prob'])} | {f(m['brier'])} "
+                         f"| {f(m['ece'])} | {f(m['auroc'])} |")
     return lines
 
 
