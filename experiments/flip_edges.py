@@ -26,7 +26,7 @@ import tyro
 
 from rhaml_jax import allocator, data, frames, render
 from rhaml_jax.camera import T_cam_robot
-from rhaml_jax.metrics import flipped
+from rhaml_jax.metrics import flipped, view_deg
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +112,7 @@ def main(args: Args):
         kept, turned = scores(edges / norm, masks, args.shift)
         gt = np.asarray(f.xypsi, float)
         rows.append({"im_id": f.im_id, "range_m": float(np.hypot(gt[0], gt[1])),
-                     "view_deg": float(np.degrees(abs(np.angle(np.exp(1j * (gt[2] - np.arctan2(gt[1], gt[0]))))))),
+                     "view_deg": float(view_deg(gt)[0]),
                      "iml_flipped": bool(flipped([e[2]], [gt[2]])[0]), "kept": kept, "turned": turned,
                      "outline_px": int(outline(masks[0]).sum())})
     summary = summarize(rows, args.margins)

@@ -18,7 +18,7 @@ VIEW_BINS_DEG = (0, 30, 60, 90, 120, 150, 180)
 RANGE_BINS_M = (0, 3, 4, 5, 6, 100)
 
 
-def flips_by_view(frames: list[dict]) -> dict:
+def flips_binned(frames: list[dict]) -> dict:
     """Flips of IML's estimate over the detected frames with the robot in view, in all and per bin
     (each bin: [flips, frames])."""
     seen = [f for f in frames if f["observed"] and f["detected"]]
@@ -44,7 +44,7 @@ def main():
     res = {}
     for item in a.runs:
         label, _, path = item.partition("=")
-        res[label] = r = flips_by_view(json.loads(open(path).read())["frames"])
+        res[label] = r = flips_binned(json.loads(open(path).read())["frames"])
         pct = lambda fn: f"{100 * fn[0] / fn[1]:.0f} % of {fn[1]}" if fn[1] else "-"  # noqa: E731
         print(f"{label}: {r['flips']} flips of {r['frames']}; by view (deg): "
               + "; ".join(f"{k} {pct(v)}" for k, v in r["by_view_deg"].items())

@@ -295,10 +295,9 @@ def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, worker
         if name not in state.started:
             plan = _pace(state, plan, name, budget - used, faces, log)
             state.started.append(name)
-            state.save(out / "fit.json")
             funcs = stage_functions(out, robot_spec, plan, workers, seed)
         ts = state.begun[name] = _now()
-        state.save(out / "fit.json")
+        state.save(out / "fit.json")  # the paced plan, and when this attempt began
         funcs[name]()
         state.done[name] = round(state.lost.get(name, 0.0) + _now() - ts, 1)
         state.save(out / "fit.json")
