@@ -18,7 +18,7 @@ def pytest_configure(config):
 
     from rhaml_jax.compile_cache import CACHE_ENV, enable_compile_cache
 
-    if os.environ.get(CACHE_ENV, "").lower() != "off" and config.cache is not None:
+    if os.environ.get(CACHE_ENV, "").lower() != "off" and getattr(config, "cache", None) is not None:  # absent under -p no:cacheprovider
         os.environ.setdefault(CACHE_ENV, str(config.cache.mkdir("xla")))
     enable_compile_cache()
 

@@ -332,6 +332,25 @@ def test_camouflage_is_drawn_last_inside_its_range_and_never_in_the_heldout_band
     assert np.allclose(data._appearance.camouflaged(parts, robot, around, 1.0, CFG), parts * around / robot)
 
 
+def test_monochrome_paints_every_part_one_hue_drawn_last_and_never_the_heldout_colouring():
+    """monochrome_prob: as often as the probability says, every part shares one hue (outside the
+    held-out band) with its own saturation and value inside their ranges; drawn after every other
+    factor, so a set without it keeps its draws; pure in (seed, index)."""
+    mono = dataclasses.replace(CFG, monochrome_prob=0.5)
+    plain, looks = _looks(6, 400), [data.sample_look(mono, 6, i, GROUPS) for i in range(400)]
+    painted = [not np.array_equal(lk.part_hsv, p.part_hsv) for lk, p in zip(looks, plain)]
+    assert abs(np.mean(painted) - 0.5) < 0.07
+    assert all(_same(dataclasses.replace(lk, part_hsv=p.part_hsv), p) for lk, p in zip(looks, plain))
+    hsv = np.stack([lk.part_hsv for lk, m in zip(looks, painted) if m])  # (N, 6, 3)
+    coloured = hsv[..., 1] >= CFG.exclude_min_saturation  # a hue moved out of the band differs by < 1e-5
+    spread = np.ptp(hsv[..., 0], axis=1)
+    assert np.all((spread < 1e-3) | ~coloured.all(axis=1)) and np.median(spread) < 1e-3
+    assert np.all((hsv[..., 2] >= CFG.part_value[0] - 1e-9) & (hsv[..., 2] <= 1.0)) and np.all((hsv[..., 1] >= 0) & (hsv[..., 1] <= 1))
+    assert np.std(hsv[..., 2], axis=1).mean() > 0.1  # each part its own value: no dark part marks an end
+    assert not np.any(_in_heldout_band(hsv, HELD))
+    assert _same(data.sample_look(mono, 6, 7, GROUPS), data.sample_look(mono, 6, 7, GROUPS))
+
+
 def test_a_camouflaged_robot_is_closer_to_its_surroundings():
     """In rendered images, the robot's mean colour moves towards the scene's around it."""
     mesh = as_mesh(load_robot("pioneer3dx"))

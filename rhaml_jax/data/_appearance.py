@@ -79,6 +79,12 @@ class AppearanceConfig:
       repaint_prob: the whole robot repainted: every part grey or recoloured as above, none keeps
         its own colour (the issue-18 control: a blue body or grey tyres moved the old networks
         by metres); 0 in the v2 sets (which it leaves as they were: no draw at 0);
+      monochrome_prob: the whole robot in one paint (drawn after the rest, in place of the parts'
+        colours above): one hue for every part (outside hue_exclude_deg), each part its own
+        saturation in (0, 1) and value in part_value, then dark_lift: no part's hue or darkness
+        marks the front or the back (a robot painted one colour; the held-out flips read a
+        one-hue robot's back as its front, BENCHMARKS.md "Where the held-out flips are");
+        0 in the v2 and v3 sets (no draw at 0);
       dark_lift: every part's value v -> v + lift (1 - v) (dark parts rendered lighter);
       hue_exclude_deg, exclude_min_saturation: no part (and no robot-like distractor) with at
         least that saturation ever has a hue in this band (it is the held-out colouring's).
@@ -151,6 +157,7 @@ class AppearanceConfig:
     cart_length_m: Range = (0.2, 0.9)
     camouflage_prob: float = 0.0
     camouflage: Range = (0.5, 1.0)
+    monochrome_prob: float = 0.0
 
     def __post_init__(self):
         if not _DEFERRED[0]:
@@ -469,9 +476,23 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
         backdrop_photo=cfg.backdrop_photos[rng.integers(len(cfg.backdrop_photos))],
         distractor_hsv=distractors,
     )
-    if cfg.camouflage_prob > 0 and rng.random() < cfg.camouflage_prob:  # last: no draw at 0, older sets unchanged
+    if cfg.camouflage_prob > 0 and rng.random() < cfg.camouflage_prob:  # after the rest: no draw at 0, older sets unchanged
         look = dataclasses.replace(look, camouflage=_u(rng, cfg.camouflage))
+    if cfg.monochrome_prob > 0 and rng.random() < cfg.monochrome_prob:  # likewise
+        look = dataclasses.replace(look, part_hsv=_monochrome_hsv(rng, len(part), cfg))
     return look
+
+
+def _monochrome_hsv(rng, n: int, cfg: AppearanceConfig) -> np.ndarray:
+    """(n, 3) HSV of a robot in one paint: a hue shared by every part, saturation and value each
+    part's own (`AppearanceConfig.monochrome_prob`)."""
+    h = _allowed_hue(rng, cfg.hue_exclude_deg)
+    out = []
+    for _ in range(n):
+        s, v = float(rng.uniform(0, 1)), _u(rng, cfg.part_value)
+        v = v + _u(rng, cfg.dark_lift) * (1.0 - v)
+        out.append((_out_of_band(h, s, cfg), s, min(1.0, v)))
+    return np.array(out, np.float64).reshape(-1, 3)
 
 
 def surroundings(mask: np.ndarray) -> tuple[tuple[slice, slice], np.ndarray]:
