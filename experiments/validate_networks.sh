@@ -1,0 +1,30 @@
+#!/bin/bash
+# Scores one set of networks on the validation sets, as the shipping choices are made
+# (BENCHMARKS.md, "Carts and the end-on misses"): ours (circle + sine of seeds 7 and 8, 500 frames
+# each) and the OOD look (circle + sine with odometry; random and background for detection), with
+# `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of experiments/pipeline_from_json.py.
+# Never the held-out set.
+#
+#   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner}
+#   LABEL=default bash experiments/validate_networks.sh                    # the shipped defaults
+set -e
+: "${LABEL:?}" "${DATA:=/work/data}" "${EV:=/work/runs/validation}"
+PY=${PY:-python}
+mkdir -p "$EV"
+NETARGS=()
+[ -n "$NETS" ] && NETARGS=(--amlnet "$NETS/amlnet" --zoom "$NETS/zoom" --refiner "$NETS/refiner")
+ev() {  # set modules
+  j="$EV/${LABEL}_$(echo "$1" | tr / _).json"
+  [ -f "$j" ] || $PY -m rhaml_jax.evaluate --data "$DATA/$1" --modules "$2" --zoom-mirror "${NETARGS[@]}" --json "$j" > "${j%.json}.log"
+}
+OURS="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine"
+OOD="val_ood/circle val_ood/sine"
+for d in $OURS $OOD; do ev "$d" iml,ir,pgo; done
+for d in val_ood/random val_ood/background; do ev "$d" iml,ir; done
+args=(--set ours); for d in $OURS; do args+=("$EV/${LABEL}_$(echo "$d" | tr / _).json" "$DATA/$d"); done
+args+=(--set ood); for d in $OOD; do args+=("$EV/${LABEL}_$(echo "$d" | tr / _).json" "$DATA/$d"); done
+$PY experiments/pipeline_from_json.py "${args[@]}" --out "$EV/${LABEL}_summary.json"
+for d in val_ood/random val_ood/background; do
+  $PY -c "import json,sys; m=json.load(open(sys.argv[1]))['metrics']; print(sys.argv[2], 'detection accuracy', round(m['detection_accuracy'], 3))" \
+      "$EV/${LABEL}_$(echo "$d" | tr / _).json" "$d"
+done
