@@ -17,6 +17,8 @@ for v in mono mono0; do
       --w-xy 69.4 526 --init rhaml_jax/checkpoints/zoom_fit_cpu --lr 5e-4 --warmup 100 --steps 3000 --batch 32 \
       --val-every 750 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d $OUT/run_$v/checkpoints ] && echo --resume )
   $PY -c "from rhaml_jax.amlnet import export_weights; export_weights('$OUT/run_$v', '$OUT/zoom_$v')"
+  # the flip probability calibrated on the fine-tune's own validation split, as fit does (IML+PGO weighs the flips by it)
+  $PY -m rhaml_jax.calibrate_flips --data /work/data/${v}_train --split val --zoom $OUT/zoom_$v --zoom-mirror
 done
 for m in def mono mono0; do
   Z=$([ $m = def ] && echo "" || echo "--zoom $OUT/zoom_$m")
