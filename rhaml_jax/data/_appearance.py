@@ -486,12 +486,11 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
 def _monochrome_hsv(rng, n: int, cfg: AppearanceConfig) -> np.ndarray:
     """(n, 3) HSV of a robot in one paint: a hue shared by every part, saturation and value each
     part's own (`AppearanceConfig.monochrome_prob`)."""
-    h = _allowed_hue(rng, cfg.hue_exclude_deg)
+    h = _allowed_hue(rng, cfg.hue_exclude_deg)  # outside the held-out band at any saturation
     out = []
     for _ in range(n):
         s, v = float(rng.uniform(0, 1)), _u(rng, cfg.part_value)
-        v = v + _u(rng, cfg.dark_lift) * (1.0 - v)
-        out.append((_out_of_band(h, s, cfg), s, min(1.0, v)))
+        out.append((h, s, min(1.0, v + _u(rng, cfg.dark_lift) * (1.0 - v))))
     return np.array(out, np.float64).reshape(-1, 3)
 
 
