@@ -13,18 +13,19 @@ PY=${PY:-python}
 mkdir -p "$EV"
 NETARGS=()
 [ -n "$NETS" ] && NETARGS=(--amlnet "$NETS/amlnet" --zoom "$NETS/zoom" --refiner "$NETS/refiner")
+json() { echo "$EV/${LABEL}_$(echo "$1" | tr / _).json"; }  # set -> its evaluate output (kept: a rerun skips it)
 ev() {  # set modules
-  j="$EV/${LABEL}_$(echo "$1" | tr / _).json"
+  j=$(json "$1")
   [ -f "$j" ] || $PY -m rhaml_jax.evaluate --data "$DATA/$1" --modules "$2" --zoom-mirror "${NETARGS[@]}" --json "$j" > "${j%.json}.log"
 }
 OURS="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine"
 OOD="val_ood/circle val_ood/sine"
 for d in $OURS $OOD; do ev "$d" iml,ir,pgo; done
 for d in val_ood/random val_ood/background; do ev "$d" iml,ir; done
-args=(--set ours); for d in $OURS; do args+=("$EV/${LABEL}_$(echo "$d" | tr / _).json" "$DATA/$d"); done
-args+=(--set ood); for d in $OOD; do args+=("$EV/${LABEL}_$(echo "$d" | tr / _).json" "$DATA/$d"); done
+args=(--set ours); for d in $OURS; do args+=("$(json "$d")" "$DATA/$d"); done
+args+=(--set ood); for d in $OOD; do args+=("$(json "$d")" "$DATA/$d"); done
 $PY experiments/pipeline_from_json.py "${args[@]}" --out "$EV/${LABEL}_summary.json"
 for d in val_ood/random val_ood/background; do
   $PY -c "import json,sys; m=json.load(open(sys.argv[1]))['metrics']; print(sys.argv[2], 'detection accuracy', round(m['detection_accuracy'], 3))" \
-      "$EV/${LABEL}_$(echo "$d" | tr / _).json" "$d"
+      "$(json "$d")" "$d"
 done
