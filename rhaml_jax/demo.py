@@ -49,13 +49,13 @@ def _combination_available(mods) -> str | None:
     if "ir" not in mods:
         return None
     try:
-        from rhaml_jax import refine  # noqa: F401
+        from rhaml_jax.refine import DEFAULT_REFINER
     except ImportError:
         return "this build has no refinement stage (rhaml_jax.refine)"
     from rhaml_jax.amlnet import shipped_checkpoint
 
     try:
-        shipped_checkpoint("refiner_cpu")
+        shipped_checkpoint(DEFAULT_REFINER)
     except RhamlError as e:
         return str(e)
     return None

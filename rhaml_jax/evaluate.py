@@ -53,7 +53,7 @@ class Args:
     """also run the zoom-in stage on each crop mirrored left-right and average the two answers
     (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
     refiner: Path | None = None
-    """refiner checkpoint folder (the ir module; default: the shipped refiner_cpu)"""
+    """refiner checkpoint folder (the ir module; default: the shipped `refine.DEFAULT_REFINER`)"""
     segmenter: Path | None = None
     """segmenter checkpoint folder (`train --stage segmenter`; the ir module: after the learned
     iterations, the silhouette alignment to its masks of the image; default: none. Experimental:

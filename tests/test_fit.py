@@ -261,7 +261,8 @@ def _timed_run(tmp_path, monkeypatch, budget: float, slow: float, fail_in: str |
     from rhaml_jax.fitting._plan import stage_seconds
 
     # the epoch's seconds, as file times are; a resumed run starts hours after the last attempt began
-    begun = json.loads((tmp_path / "p" / "fit.json").read_text())["begun"] if resume else {"": 1.7e9 - 1e4}
+    path = tmp_path / "p" / "fit.json"
+    begun = json.loads(path.read_text()).get("begun", {"": path.stat().st_mtime}) if resume else {"": 1.7e9 - 1e4}
     clock, ran = [max(begun.values()) + 1e4], {}
 
     def stages(out, robot_spec, plan, workers, seed):
@@ -303,7 +304,7 @@ def test_a_run_behind_its_rates_is_paced_to_its_budget(tmp_path, monkeypatch):
     shrunk = {k: v / stage_counts(plan)[k] for k, v in stage_counts(ran["report"]).items() if stage_counts(plan)[k]}
     assert max(shrunk.values()) < 0.85 and max(shrunk.values()) - min(shrunk.values()) < 0.02, shrunk
     stored = json.loads((tmp_path / "slow" / "p" / "fit.json").read_text())
-    assert stored["started"] == list(STAGES) and stored["plan"]["zoom_steps"] == ran["zoom"].zoom_steps
+    assert list(stored["begun"]) == list(STAGES) and stored["plan"]["zoom_steps"] == ran["zoom"].zoom_steps
 
 
 def test_a_killed_stage_keeps_its_counts_and_its_time(tmp_path, monkeypatch):
@@ -320,6 +321,23 @@ def test_a_killed_stage_keeps_its_counts_and_its_time(tmp_path, monkeypatch):
     zoom_s = 1.2 * stage_seconds(before["zoom"], 604)["zoom"]
     assert state.lost == {"zoom": pytest.approx(0.5 * zoom_s, abs=0.1)}
     assert state.done["zoom"] == pytest.approx(1.5 * zoom_s, abs=0.2)
+
+
+def test_a_run_of_an_older_version_resumes_its_stage_in_progress(tmp_path, monkeypatch):
+    """fit.json of a version before pacing (no `begun`, `lost` or `planned`), killed in the zoom
+    stage: the stage keeps its counts, and its attempt counts from when fit.json was last written."""
+    from rhaml_jax.fitting._plan import stage_seconds
+
+    _, before, _ = _timed_run(tmp_path, monkeypatch, 60, 1.2, fail_in="zoom")
+    path = tmp_path / "p" / "fit.json"
+    stored = json.loads(path.read_text())
+    zoom_began = stored.pop("begun")["zoom"]
+    del stored["lost"], stored["planned"]
+    path.write_text(json.dumps(stored))
+    os.utime(path, (zoom_began, zoom_began))  # the old version wrote it when the stage before finished
+    _, after, state = _timed_run(tmp_path, monkeypatch, 60, 1.2, resume=True)
+    assert "amlnet" not in after and after["zoom"].zoom_steps == before["zoom"].zoom_steps
+    assert state.lost == {"zoom": pytest.approx(0.5 * 1.2 * stage_seconds(before["zoom"], 604)["zoom"], abs=0.1)}
 
 
 def test_pacing_stays_between_the_minima_and_the_plan_as_made():

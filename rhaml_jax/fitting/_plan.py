@@ -214,6 +214,12 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
         raise RhamlError(f"--budget-minutes {budget_minutes:g}: too small to train anything"
                          f"{'' if warm_start else ' from scratch'} ({', '.join(f'{k} {counts[k]} < {minima[k]}' for k in short)}); "
                          f"give at least {need} minutes")
+    return _from_counts(counts, budget_minutes, scale, warm_start)
+
+
+def _from_counts(counts: dict[str, int], budget_minutes: float, scale: float, warm_start: bool) -> Plan:
+    """The size-"cpu" plan of `counts` (images, amlnet_steps, zoom_steps, refiner_steps, frames):
+    what each count brings with it (module docstring)."""
     images = counts["images"]
     nocart = int(images * NOCART_IMAGE_FRACTION)
     return Plan("cpu", "cpu_heat", "zoom_cpu_luma", "refiner_cpu", 320, images * 7 // 8, images - images * 7 // 8, max(40, images // 10),
@@ -222,6 +228,19 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
                 0 if warm_start else round(counts["zoom_steps"] * ZOOM_V1_FRACTION), max(20, images // 20),
                 round(counts["refiner_steps"] * REFINER_V1_FRACTION), nocart * 7 // 8, nocart - nocart * 7 // 8,
                 round(counts["amlnet_steps"] * NOCART_STEP_FRACTION))
+
+
+# count -> the stages whose seconds it buys (`stage_seconds`)
+_COUNT_STAGES = {"images": ("data",), "amlnet_steps": ("amlnet", "amlnet_nocart"), "zoom_steps": ("zoom_v1", "zoom"),
+                 "refiner_steps": ("refiner_v1", "refiner"), "frames": ("scenarios",)}
+
+
+def _unit_seconds(faces: int, curriculum: bool) -> dict[str, float]:
+    """Seconds per unit of each count, with all it brings: `stage_seconds` of a plan with a large
+    count of each (so that the plan's roundings vanish), per unit."""
+    n = 1_000_000
+    seconds = stage_seconds(_from_counts(dict.fromkeys(_COUNT_STAGES, n), 0.0, 1.0, not curriculum), faces)
+    return {k: sum(seconds[s] for s in stages) / n for k, stages in _COUNT_STAGES.items()}
 
 
 def _mesh_rates(faces: int) -> tuple[float, ...]:
@@ -236,15 +255,7 @@ def _counts(budget_s: float, faces: int, curriculum: bool) -> dict[str, int]:
     """Images, steps and frames a budget buys (module docstring); zeros when the evaluation's
     compilations take it all."""
     s = budget_s - eval_compile_s()  # what the shares split
-    image_s, v1_s, refine_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
-    # seconds per unit of each count: an image brings AMLNet's no-cart ones (0.3 as many), the
-    # refiner's v3 and v1 ones (a tenth and a twentieth, at 640 x 480) and the curriculum's v1 ones;
-    # a first-phase AMLNet step brings its share of no-cart steps; two scenarios and four held-out
-    # parts of about the same size, each evaluated
-    unit = {"images": (image_s * (1 + NOCART_IMAGE_FRACTION) + refine_s / 10 + v1_refine_s / 20
-                       + (V1_FRACTION * v1_s if curriculum else 0.0)),
-            "amlnet_steps": RATES["amlnet_step_s"] * (1 + NOCART_STEP_FRACTION), "zoom_steps": RATES["zoom_step_s"],
-            "refiner_steps": refiner_s, "frames": frame_s * 6}
+    unit = _unit_seconds(faces, curriculum)
     stage = {"images": "data", "amlnet_steps": "amlnet", "zoom_steps": "zoom", "refiner_steps": "refiner", "frames": "evaluation"}
     seconds = {k: SHARES[stage[k]] * max(s, 0.0) for k in unit}
     caps = CAPS_FROM_SCRATCH if curriculum else CAPS
@@ -301,7 +312,9 @@ def with_counts(plan: Plan, counts: dict[str, int]) -> Plan:
 def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
     """stage -> its seconds at the rule's rates: what is fixed (the data, the compilations) and what
     its count costs (`stage_counts`; `scenarios` is charged its frames' evaluation too, which its
-    frame count fixes, and `evaluate` its compilations)."""
+    frame count fixes: two scenarios and four held-out parts of about that size; `evaluate` is
+    charged its compilations). The single source of the rule's costs: `make_plan` splits the
+    budget with them too (`_unit_seconds`)."""
     image_s, v1_s, refine_s, v1_refine_s, frame_s, refiner_s = _mesh_rates(faces)
     n = stage_counts(plan)
     images = plan.images + plan.negatives + plan.nocart_images + plan.nocart_negatives

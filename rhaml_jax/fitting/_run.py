@@ -63,12 +63,11 @@ class FitState:
     plan: dict
     done: dict = dataclasses.field(default_factory=dict)
     """stage -> wall seconds it took"""
-    started: list = dataclasses.field(default_factory=list)
-    """stages begun, in order: their counts in `plan` are fixed (pacing changes only the later ones)"""
     planned: dict | None = None
     """the plan as made, before pacing (_plan's docstring)"""
     begun: dict = dataclasses.field(default_factory=dict)
-    """stage -> wall clock (s since the epoch) when its latest attempt began"""
+    """stage -> wall clock (s since the epoch) when its latest attempt began; a begun stage's counts
+    in `plan` are fixed (pacing changes only the stages not yet begun)"""
     lost: dict = dataclasses.field(default_factory=dict)
     """stage -> seconds it ran in attempts that were killed, each up to its last output file
     (counted in `done` once it finishes: the wall time of a run that was killed and resumed)"""
@@ -94,10 +93,11 @@ def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[Fi
         require_same_robot(RobotFingerprint.from_dict(stored["robot"], str(path)), fp,
                            f"--resume {out}: this run fits robot {{mine}}, not --robot {robot_spec} {{theirs}}; nothing was changed")
         done = stored.get("done", {})
-        # a run of a version before pacing: the stage after the finished ones may have begun
-        started = stored.get("started", [*done, *[k for k in STAGES if k not in done][:1]])
-        return (FitState(stored["robot"], stored["plan"], done, started, stored.get("planned", stored["plan"]),
-                         stored.get("begun", {}), stored.get("lost", {})),
+        begun = stored.get("begun")
+        if begun is None:  # a run of a version before pacing: the stage after the finished ones may
+            todo = [k for k in STAGES if k not in done]  # have begun when fit.json was last written
+            begun = {todo[0]: path.stat().st_mtime} if todo else {}
+        return (FitState(stored["robot"], stored["plan"], done, stored.get("planned", stored["plan"]), begun, stored.get("lost", {})),
                 Plan.from_dict(stored["plan"], f"{path}: plan"))
     if resume:
         raise RhamlError(f"--resume {out}: no fit run there (fit.json not found)")
@@ -292,9 +292,8 @@ def run_fit(robot_spec: str, out: Path, plan: Plan, resume: bool = False, worker
         used = sum(state.done.values()) + sum(v for s, v in state.lost.items() if s not in state.done)
         log(f"[fit {k}/{len(STAGES)}] {name}: {used / 60:.1f} min used, {max(0.0, budget - used) / 60:.1f} min left of "
             f"the {plan.budget_minutes:g} min budget")
-        if name not in state.started:
+        if name not in state.begun:
             plan = _pace(state, plan, name, budget - used, faces, log)
-            state.started.append(name)
             funcs = stage_functions(out, robot_spec, plan, workers, seed)
         ts = state.begun[name] = _now()
         state.save(out / "fit.json")  # the paced plan, and when this attempt began

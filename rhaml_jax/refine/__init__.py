@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -214,11 +214,15 @@ def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
     return export_params(run_dir, out_dir, load_refiner(run_dir).params)
 
 
+DEFAULT_REFINER = "refiner_cpu"
+"""the shipped refiner that `load_stage`, `evaluate` and the demo use unless given another"""
+
+
 def shipped_refiner(model=None) -> Refiner:
-    """The refiner shipped in the package (rhaml_jax/checkpoints/refiner_cpu), for the built-in robot."""
+    """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
 
-    return load_refiner(shipped_checkpoint("refiner_cpu"), model)
+    return load_refiner(shipped_checkpoint(DEFAULT_REFINER), model)
 
 
 class StageParams(NamedTuple):
@@ -236,7 +240,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
-    refiner_cpu; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
+    `DEFAULT_REFINER`; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
@@ -244,7 +248,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
 
     robot = load_bop_model(data_dir) if data_dir is not None and bop_model_path(data_dir).exists() else load_robot("pioneer3dx")
     check = robot if check_robot else None
-    refiner = load_refiner(ckpt_dir or shipped_checkpoint("refiner_cpu"), check)
+    refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
     sc = None if scorer is None else load_scorer(scorer, check)
     return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc)
