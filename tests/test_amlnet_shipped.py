@@ -1,6 +1,6 @@
-"""The shipped `cpu` checkpoint and its zoom-in stage: load from the package, are within the
-size budget, and localise the built-in robot on freshly rendered images (seeds the training
-never saw) about as well as BENCHMARKS.md reports."""
+"""The shipped checkpoints: every AMLNet, zoom stage and refiner loads from the package within the
+size budget, for the built-in robot; the `cpu` checkpoint and its zoom-in stage localise it on
+freshly rendered images (seeds the training never saw) about as well as BENCHMARKS.md reports."""
 
 from __future__ import annotations
 
@@ -78,3 +78,22 @@ def test_shipped_zoom_stage_finds_the_heading():
     assert np.median(dpsi) < MAX_MEDIAN_DPSI_DEG, np.sort(dpsi)
     dy = np.abs(est[:, 1] - gt[:, 1])
     assert np.median(dy) < MAX_MEDIAN_DY_M
+
+
+def test_shipped_refiner_size_and_robot():
+    """The shipped refiner: within the size budget, finite, the Pioneer's (another robot is refused)."""
+    import dataclasses
+
+    from rhaml_jax.errors import RhamlError
+    from rhaml_jax.refine import DEFAULT_REFINER, load_refiner
+    from rhaml_jax.robots import load_robot
+
+    path = shipped_checkpoint(DEFAULT_REFINER)
+    size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
+    robot = load_robot("pioneer3dx")
+    refiner = load_refiner(path, robot)
+    assert refiner.cfg.name == "refiner_cpu"
+    assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(refiner.params))
+    with pytest.raises(RhamlError, match="refiner checkpoint is for robot"):
+        load_refiner(path, dataclasses.replace(robot, vertices=robot.vertices * 1.5))
