@@ -13,22 +13,23 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 | amlnet: `cpu_heat`, batch 32, then 3/8 as many steps on the no-cart images | 45 % | 1.1 s per step (compilation and validation included) | steps (of the first phase) |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
-| evaluation: scenarios, held-out set, evaluate | 18 % | 0.32 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
+| evaluation: scenarios, held-out set, evaluate | 18 % | 0.15 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
 
-Before the split, the evaluation's fixed cost is taken off the budget: each of its 16 `evaluate`
-runs compiles its pipeline first (`EVAL_COMPILE_S`, 32 s each; measured in the 110- and
-30-minute runs, BENCHMARKS.md), whatever the number of frames, and so does the export stage's
-flip calibration (`calibrate_flips` on the training set's validation split): 17 compilations,
-9 min in all. The shares split the rest.
+Before the split, the evaluation's fixed cost is taken off the budget: its 16 `evaluate` runs
+compile their pipelines (`EVAL_COMPILE_S`, 11 s per run: in one process the first run of each
+module combination compiles, 20, 39 and 58 s, and the later ones reuse it, 2-6 s; measured in
+session 26's 140-minute run, BENCHMARKS.md), whatever the number of frames, and the export stage
+writes the weights and compiles the flip calibration (`calibrate_flips` on the training set's
+validation split; `EXPORT_S`, 32 s): 3.5 min in all. The shares split the rest.
 
 The seconds a capped stage leaves (below) go to AMLNet and the zoom stage, in proportion to
 their shares, up to their caps, and then to the refiner: the budget is spent on training, not
 left unused.
 
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
-points measured on this machine, the built-in Pioneer (604 faces: 0.13 s per refiner step and
-0.32 s per evaluated frame in the from-scratch 110-minute run; the images' rates in the 163-minute
-one of session 23) and the TurtleBot3 Burger URDF (91,104 faces: 0.5 s per refiner step, 1.17 s
+points measured on this machine, the built-in Pioneer (604 faces: 0.13 s per refiner step in the
+from-scratch 110-minute run; the images' rates in the 163-minute one of session 23; 0.15 s per
+evaluated frame in the 140-minute one of session 26) and the TurtleBot3 Burger URDF (91,104 faces: 0.5 s per refiner step, 1.17 s
 per evaluated frame; the images in the 45-minute run of session 23), joined by a line
 (BENCHMARKS.md, "Your own robot" and "Pacing").
 
@@ -109,14 +110,17 @@ IMAGE_S = (0.029, 0.136)  # v3 at 320 x 256 (with or without carts)
 V1_IMAGE_S = (0.015, 0.136)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
 REFINE_IMAGE_S = (0.122, 0.26)  # v3 at 640 x 480, the refiner's
 V1_REFINE_IMAGE_S = (0.05, 0.13)  # v1 at 640 x 480
-EVAL_FRAME_S = (0.32, 1.17)
+EVAL_FRAME_S = (0.15, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 REFINER_SPARE_CAP = 6000  # the refiner's steps when AMLNet and the zoom stage are capped and seconds are left
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
-EVAL_COMPILE_S = 32.0
-"""seconds each `evaluate` run spends compiling before its first frame (the 110- and 30-minute
-runs: about 510 s over their 16 runs), whatever the frame count"""
+EVAL_COMPILE_S = 11.0
+"""seconds an `evaluate` run spends compiling, on average, whatever the frame count (session 26's
+140-minute run: about 170 s over 16 runs in one process; the 110- and 30-minute runs, before compiled
+programs were shared, 510 s over 16)"""
+EXPORT_S = 32.0
+"""the export stage: weights written, the flip calibration compiled and run (34 s in session 26)"""
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)
 ZOOM_V1_FRACTION = 12 / 17  # from scratch: the zoom stage's steps spent on v1 images before the v3 ones
 REFINER_V1_FRACTION = 2 / 3  # the refiner's steps spent on v1 images before the v3 ones
@@ -282,9 +286,9 @@ def eval_modules(name: str) -> tuple[str, ...]:
 
 
 def eval_compile_s(eval_sets: tuple[str, ...] = EVAL_SETS) -> float:
-    """The evaluation's fixed cost: one compilation per `evaluate` run, and one for the export
-    stage's flip calibration (IML on the training set's validation split)."""
-    return EVAL_COMPILE_S * (sum(len(eval_modules(name)) for name in eval_sets) + 1)
+    """The evaluation's fixed cost: the `evaluate` runs' compilations, and the export stage with
+    its flip calibration (IML on the training set's validation split)."""
+    return EVAL_COMPILE_S * sum(len(eval_modules(name)) for name in eval_sets) + EXPORT_S
 
 
 # Pacing (module docstring): the counts a stage runs, and their smallest paced values
@@ -322,8 +326,8 @@ def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
             "amlnet": n["amlnet"] * RATES["amlnet_step_s"], "amlnet_nocart": n["amlnet_nocart"] * RATES["amlnet_step_s"],
             "zoom_v1": n["zoom_v1"] * RATES["zoom_step_s"], "zoom": n["zoom"] * RATES["zoom_step_s"],
             "refiner_v1": n["refiner_v1"] * refiner_s, "refiner": n["refiner"] * refiner_s,
-            "export": EVAL_COMPILE_S, "scenarios": n["scenarios"] * frame_s * 6,
-            "evaluate": eval_compile_s(plan.eval_sets) - EVAL_COMPILE_S, "report": 0.0}
+            "export": EXPORT_S, "scenarios": n["scenarios"] * frame_s * 6,
+            "evaluate": eval_compile_s(plan.eval_sets) - EXPORT_S, "report": 0.0}
 
 
 def slowness(plan: Plan, done: dict[str, float], faces: int) -> float:
