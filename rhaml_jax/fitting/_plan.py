@@ -29,9 +29,10 @@ left unused.
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
 points measured on this machine, the built-in Pioneer (604 faces: 0.13 s per refiner step in the
 from-scratch 110-minute run; the images' rates in the 163-minute one of session 23; 0.15 s per
-evaluated frame in the 140-minute one of session 26) and the TurtleBot3 Burger URDF (91,104 faces: 0.5 s per refiner step, 1.17 s
-per evaluated frame; the images in the 45-minute run of session 23), joined by a line
-(BENCHMARKS.md, "Your own robot" and "Pacing").
+evaluated frame in the 140-minute one of session 26) and the TurtleBot3 Burger URDF (91,104
+faces: 0.5 s per refiner step, 1.17 s per evaluated frame; the images in the 45-minute run of
+session 23), joined by a line (BENCHMARKS.md, "Your own robot", "Pacing" and "The Pioneer from
+nothing in one session").
 
 Every distance of the robot's world is scaled by `RobotModel.world_scale`: the robot's length over
 the built-in Pioneer's 0.455 m (1 for the Pioneer, whose scenarios DESIGN.md fixes; 0.39 for the
