@@ -17,8 +17,9 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 
 Before the split, the evaluation's fixed cost is taken off the budget: its 16 `evaluate` runs
 compile their pipelines (`EVAL_COMPILE_S`, 11 s per run: in one process the first run of each
-module combination compiles, 20, 39 and 58 s, and the later ones reuse it, 2-6 s; measured in
-session 26's 140-minute run, BENCHMARKS.md), whatever the number of frames, and the export stage
+module combination and frame count compiles, 20-58 s, and the later ones reuse it, 2-6 s; with the
+per-frame rate it totals what session 26's 140-minute run measured, 626 s against 613, though its
+compilations alone took 218 s, 13.6 s per run: BENCHMARKS.md), whatever the number of frames, and the export stage
 writes the weights and compiles the flip calibration (`calibrate_flips` on the training set's
 validation split; `EXPORT_S`, 32 s): 3.5 min in all. The shares split the rest.
 
@@ -117,9 +118,10 @@ CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_s
 REFINER_SPARE_CAP = 6000  # the refiner's steps when AMLNet and the zoom stage are capped and seconds are left
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
 EVAL_COMPILE_S = 11.0
-"""seconds an `evaluate` run spends compiling, on average, whatever the frame count (session 26's
-140-minute run: about 170 s over 16 runs in one process; the 110- and 30-minute runs, before compiled
-programs were shared, 510 s over 16)"""
+"""seconds an `evaluate` run is charged for compiling, whatever the frame count (session 26's
+140-minute run measured 218 s over 16 runs in one process, 13.6 s each, and the frames 0.13 s per
+frame-unit: this split, 11 s and 0.15 s, gives the same total at 500 frames per set; the 110- and
+30-minute runs, before compiled programs were shared, 510 s over 16)"""
 EXPORT_S = 32.0
 """the export stage: weights written, the flip calibration compiled and run (34 s in session 26)"""
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)

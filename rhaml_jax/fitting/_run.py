@@ -94,8 +94,10 @@ def open_state(out: Path, robot_spec: str, plan: Plan, resume: bool) -> tuple[Fi
                            f"--resume {out}: this run fits robot {{mine}}, not --robot {robot_spec} {{theirs}}; nothing was changed")
         done = stored.get("done", {})
         begun = stored.get("begun")
-        if begun is None:  # a run of a version before pacing: the stage after the finished ones may
-            todo = [k for k in STAGES if k not in done]  # have begun when fit.json was last written
+        # a run of a version before pacing: the stage after the finished ones may have begun when
+        # fit.json was last written
+        if begun is None:
+            todo = [k for k in STAGES if k not in done]
             begun = {todo[0]: path.stat().st_mtime} if todo else {}
         return (FitState(stored["robot"], stored["plan"], done, stored.get("planned", stored["plan"]), begun, stored.get("lost", {})),
                 Plan.from_dict(stored["plan"], f"{path}: plan"))
