@@ -338,6 +338,28 @@ def test_augment_range_and_determinism():
     assert np.abs(a - imgs).mean() > 1e-3 and np.abs(a - c).mean() > 1e-3
 
 
+def test_augment_effects_fixed_fraction_and_noise_level():
+    """Blur and JPEG (`_on_some`) touch exactly round(p B) images of a batch; the noise is zero-mean with a
+    standard deviation within the configured maximum."""
+    import jax
+
+    imgs = np.random.default_rng(1).uniform(0.2, 0.8, (10, 24, 32, 3)).astype(np.float32)
+    off = dict(brightness=0.0, contrast=0.0, saturation=0.0, gain=0.0, blur_prob=0.0, jpeg_prob=0.0, noise=0.0)
+    key = jax.random.PRNGKey(3)
+    np.testing.assert_allclose(np.asarray(data.augment(key, imgs, data.AugmentConfig(**off))), imgs, atol=1e-6)
+    from rhaml_jax.data._augment import _on_some
+
+    for prob, k in ((0.3, 3), (0.55, 6), (0.0, 0)):  # an effect that always shows: + strength + 1
+        out = np.asarray(_on_some(key, imgs, prob, lambda im, s: im + s + 1.0, 0.5))
+        changed = np.abs(out - imgs).reshape(10, -1).min(axis=1) >= 1.0
+        unchanged = np.abs(out - imgs).reshape(10, -1).max(axis=1) == 0.0
+        assert changed.sum() == k and (changed | unchanged).all(), (prob, changed)
+    out = np.asarray(data.augment(key, imgs, data.AugmentConfig(**(off | {"noise": 0.05}))))
+    d = (out - imgs).reshape(10, -1)
+    assert np.abs(d.mean(axis=1)).max() < 0.005
+    assert d.std(axis=1).max() <= 0.05 * 1.05 and d.std(axis=1).max() > 0.01
+
+
 def test_network_image_keeps_bearings():
     """A point seen through another camera lands, after network_image, where the network's
     camera would see it (the residual homography); the network's own camera is a plain resize."""
