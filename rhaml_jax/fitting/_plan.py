@@ -13,15 +13,15 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 | amlnet: `cpu_heat`, batch 32, then 3/8 as many steps on the no-cart images | 45 % | 1.1 s per step (compilation and validation included) | steps (of the first phase) |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
 | refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
-| evaluation: scenarios, held-out set, evaluate | 18 % | 0.15 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
+| evaluation: scenarios, held-out set, evaluate | 18 % | 0.13 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
 
 Before the split, the evaluation's fixed cost is taken off the budget: its 16 `evaluate` runs
-compile their pipelines (`EVAL_COMPILE_S`, 11 s per run: in one process the first run of each
-module combination and frame count compiles, 20-58 s, and the later ones reuse it, 2-6 s; with the
-per-frame rate it totals what session 26's 140-minute run measured, 626 s against 613, though its
-compilations alone took 218 s, 13.6 s per run: BENCHMARKS.md), whatever the number of frames, and the export stage
-writes the weights and compiles the flip calibration (`calibrate_flips` on the training set's
-validation split; `EXPORT_S`, 32 s): 3.5 min in all. The shares split the rest.
+compile their pipelines (`EVAL_COMPILE_S`, 13.6 s per run, as session 26's 140-minute run measured:
+in one process the first run of each module combination and frame count compiles, 20-58 s, and
+the later ones reuse it, 2-6 s; with the per-frame rate the rule charges its evaluation 608 s, it
+took 613: BENCHMARKS.md), whatever the number of frames, and the export stage writes the weights
+and compiles the flip calibration (`calibrate_flips` on the training set's validation split;
+`EXPORT_S`, 32 s): 4.2 min in all. The shares split the rest.
 
 The seconds a capped stage leaves (below) go to AMLNet and the zoom stage, in proportion to
 their shares, up to their caps, and then to the refiner: the budget is spent on training, not
@@ -29,7 +29,7 @@ left unused.
 
 Rendering cost grows with the robot's mesh, so the data, refiner and evaluation rates do: two
 points measured on this machine, the built-in Pioneer (604 faces: 0.13 s per refiner step in the
-from-scratch 110-minute run; the images' rates in the 163-minute one of session 23; 0.15 s per
+from-scratch 110-minute run; the images' rates in the 163-minute one of session 23; 0.13 s per
 evaluated frame in the 140-minute one of session 26) and the TurtleBot3 Burger URDF (91,104
 faces: 0.5 s per refiner step, 1.17 s per evaluated frame; the images in the 45-minute run of
 session 23), joined by a line (BENCHMARKS.md, "Your own robot", "Pacing" and "The Pioneer from
@@ -112,16 +112,16 @@ IMAGE_S = (0.029, 0.136)  # v3 at 320 x 256 (with or without carts)
 V1_IMAGE_S = (0.015, 0.136)  # the plain look renders faster; at 91,104 faces assumed as slow as v3 (the mesh dominates)
 REFINE_IMAGE_S = (0.122, 0.26)  # v3 at 640 x 480, the refiner's
 V1_REFINE_IMAGE_S = (0.05, 0.13)  # v1 at 640 x 480
-EVAL_FRAME_S = (0.15, 1.17)
+EVAL_FRAME_S = (0.13, 1.17)
 REFINER_STEP_S = (0.13, 0.5)
 CAPS = {"images": 20_000, "amlnet_steps": 4000, "zoom_steps": 10_000, "refiner_steps": 3000, "frames": 500}
 REFINER_SPARE_CAP = 6000  # the refiner's steps when AMLNet and the zoom stage are capped and seconds are left
 EVAL_SETS = ("circle", "sine", "heldout/circle", "heldout/sine", "heldout/background", "heldout/random")
-EVAL_COMPILE_S = 11.0
+EVAL_COMPILE_S = 13.6
 """seconds an `evaluate` run is charged for compiling, whatever the frame count (session 26's
-140-minute run measured 218 s over 16 runs in one process, 13.6 s each, and the frames 0.13 s per
-frame-unit: this split, 11 s and 0.15 s, gives the same total at 500 frames per set; the 110- and
-30-minute runs, before compiled programs were shared, 510 s over 16)"""
+140-minute run measured 218 s over its 16 runs in one process, `compile_seconds` in their
+results, and 0.13 s per frame-unit for the rest; the 110- and 30-minute runs, before compiled
+programs were shared, 510 s over 16)"""
 EXPORT_S = 32.0
 """the export stage: weights written, the flip calibration compiled and run (34 s in session 26)"""
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)
