@@ -338,9 +338,9 @@ def test_augment_range_and_determinism():
     assert np.abs(a - imgs).mean() > 1e-3 and np.abs(a - c).mean() > 1e-3
 
 
-def test_augment_effects_fixed_fraction_and_noise_level():
-    """Blur and JPEG (`_on_some`) touch exactly round(p B) images of a batch; the noise is zero-mean with a
-    standard deviation within the configured maximum."""
+def test_augment_effects_on_a_fraction_and_noise_level():
+    """Blur and JPEG (`_on_some`) touch p B whole images of a batch (rounded at random); the
+    noise is zero-mean with a standard deviation within the configured maximum."""
     import jax
 
     imgs = np.random.default_rng(1).uniform(0.2, 0.8, (10, 24, 32, 3)).astype(np.float32)
@@ -349,11 +349,16 @@ def test_augment_effects_fixed_fraction_and_noise_level():
     np.testing.assert_allclose(np.asarray(data.augment(key, imgs, data.AugmentConfig(**off))), imgs, atol=1e-6)
     from rhaml_jax.data._augment import _on_some
 
-    for prob, k in ((0.3, 3), (0.55, 6), (0.0, 0)):  # an effect that always shows: + strength + 1
-        out = np.asarray(_on_some(key, imgs, prob, lambda im, s: im + s + 1.0, 0.5))
-        changed = np.abs(out - imgs).reshape(10, -1).min(axis=1) >= 1.0
-        unchanged = np.abs(out - imgs).reshape(10, -1).max(axis=1) == 0.0
-        assert changed.sum() == k and (changed | unchanged).all(), (prob, changed)
+    def changed(prob, key, x):  # an effect that always shows: + strength + 1
+        out = np.asarray(_on_some(key, x, prob, lambda im, s: im + s + 1.0, 0.5))
+        d = np.abs(out - x).reshape(len(x), -1)
+        assert ((d.min(axis=1) >= 1.0) | (d.max(axis=1) == 0.0)).all()  # whole images, or none of it
+        return int((d.min(axis=1) >= 1.0).sum())
+
+    assert changed(0.3, key, imgs) == 3 and changed(0.0, key, imgs) == 0 and changed(1.0, key, imgs) == 10
+    # 5.5 of 10: 5 or 6; one image with chance 0.3: each image's chance stays 0.3
+    assert {changed(0.55, jax.random.PRNGKey(i), imgs) for i in range(40)} == {5, 6}
+    assert 0.2 < np.mean([changed(0.3, jax.random.PRNGKey(i), imgs[:1]) for i in range(100)]) < 0.4
     out = np.asarray(data.augment(key, imgs, data.AugmentConfig(**(off | {"noise": 0.05}))))
     d = (out - imgs).reshape(10, -1)
     assert np.abs(d.mean(axis=1)).max() < 0.005

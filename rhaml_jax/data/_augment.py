@@ -2,13 +2,15 @@
 
 Colour jitter (brightness, contrast, saturation, per-channel gain), Gaussian blur, JPEG-like
 8 x 8 block-DCT quantisation artefacts and sensor noise, each with its own strength per image;
-blur and JPEG on a fixed fraction of each batch. A pure function of the key.
+blur and JPEG on a random fraction of each batch, as many images as their chance times the batch
+size. A pure function of the key.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -18,8 +20,9 @@ import numpy as np
 @dataclasses.dataclass(frozen=True)
 class AugmentConfig:
     """Strengths (0 disables each): brightness/contrast/saturation/gain are +- fractions;
-    blur on round(blur_prob B) images of a batch of B, sigma up to blur_sigma px; JPEG on
-    round(jpeg_prob B), quantisation step up to `jpeg_step` (DCT units of the [0, 1] image);
+    blur on blur_prob B images of a batch of B (rounded down or up at random), sigma up to
+    blur_sigma px; JPEG on jpeg_prob B, quantisation step up to `jpeg_step` (DCT units of the
+    [0, 1] image);
     noise standard deviation up to `noise` (in [0, 1] units)."""
 
     brightness: float = 0.25
@@ -79,21 +82,25 @@ def _colour(key, img, cfg: AugmentConfig):
 
 
 def _on_some(key, images, prob: float, effect, strength_max: float):
-    """`effect(img, strength)` on round(prob B) images of the batch, chosen at random, each with
-    strength U(0, strength_max); the others unchanged.
+    """`effect(img, strength)` on a random prob B of the B images (round down or up at random, so
+    that each image's chance is `prob` for any B), each with strength U(0, strength_max); the
+    others unchanged.
 
-    A fixed count per batch (not a coin per image) so that only the chosen images are computed:
-    under vmap a per-image choice computes the effect on every image and selects (a third of
-    the augmentation's time went to blur and JPEG results thrown away)."""
+    A count per batch (not a coin per image) so that only the chosen images are computed: under
+    vmap a per-image choice computes the effect on every image and selects (a third of the
+    augmentation's time went to blur and JPEG results thrown away)."""
     images = jnp.asarray(images)
     b = images.shape[0]
-    k = min(b, round(prob * b))
-    if k == 0 or strength_max <= 0:
+    lo, hi = math.floor(prob * b), min(b, math.ceil(prob * b))
+    if hi == 0 or strength_max <= 0:
         return images
-    kc, ks = jax.random.split(key)
-    chosen = jax.random.permutation(kc, b)[:k]
-    strength = strength_max * jax.random.uniform(ks, (k,), images.dtype)
-    return images.at[chosen].set(jax.vmap(effect)(images[chosen], strength))
+    kc, ks, ku = jax.random.split(key, 3)
+    chosen = jax.random.permutation(kc, b)[:hi]
+    strength = strength_max * jax.random.uniform(ks, (hi,), images.dtype)
+    # the first `lo` chosen always; the last of `hi` with the chance that makes the mean prob B
+    keep = (jnp.arange(hi) < lo) | (jax.random.uniform(ku) < prob * b - lo)
+    done = jax.vmap(effect)(images[chosen], strength)
+    return images.at[chosen].set(jnp.where(keep[:, None, None, None], done, images[chosen]))
 
 
 def _noise(key, images, sigma_max: float):
@@ -114,8 +121,8 @@ def _noise(key, images, sigma_max: float):
 @functools.partial(jax.jit, static_argnames="cfg")
 def augment(key: jax.Array, images: jnp.ndarray, cfg: AugmentConfig = AugmentConfig()) -> jnp.ndarray:
     """(B, H, W, 3) float in [0, 1] -> augmented images of the same shape and range: colour
-    jitter on every image, blur on round(blur_prob B) of them and JPEG artefacts on
-    round(jpeg_prob B), then noise on every image."""
+    jitter on every image, blur on blur_prob B of them and JPEG artefacts on jpeg_prob B, then
+    noise on every image."""
     kc, kb, kj, kn = jax.random.split(key, 4)
     images = jax.vmap(_colour, in_axes=(0, 0, None))(jax.random.split(kc, images.shape[0]), images, cfg)
     images = _on_some(kb, images, cfg.blur_prob, _blur, cfg.blur_sigma)
