@@ -14,7 +14,8 @@ Public API:
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
   `shipped_checkpoint(name)` (the weights in the package: "heat_nocart_cpu" + "zoom_fit_cpu", the
   default IML pair, `iml.DEFAULT_AMLNET`; "heat_fit_cpu" + "zoom_fit_cpu"; "amlnet_cpu" + "zoom_cpu";
-  "heat_cpu" + "zoom_luma_cpu");
+  "heat_cpu" + "zoom_luma_cpu"; "heat_fit167_cpu" + "zoom_fit167_cpu", made with
+  "refiner_fit167_cpu" by one from-scratch `fit` run);
   `ToyRectangles` is a toy source for tests only;
 
 The zoom-in stage, a small AMLNet (config task "zoom") on a crop around AMLNet's estimate, has
