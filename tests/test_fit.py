@@ -135,6 +135,8 @@ def test_bad_input_one_line_exit_2(tmp_path):
 # per frame and set
 IMG = 0.029 * 1.3 + 0.122 / 10 + 0.05 / 20
 STEP = 1.1 * 11 / 8
+# off the top: the evaluation's 16 compilations (13.6 s each) and the export with its flip calibration (32 s)
+F = 16 * 13.6 + 32.0
 
 
 def _planned_s(r) -> float:
@@ -147,9 +149,7 @@ def test_budget_rule():
     p = make_plan(180)
     assert (p.amlnet_steps, p.images, p.frames) == (4000, 20000 * 7 // 8, 500)  # capped
     assert (p.scale, p.warm_start) == (1.0, True)
-    # the evaluation's 16 compilations (13.6 s each) and the export with its flip calibration (32 s)
-    # come off the top; the shares split the rest
-    F = 16 * 13.6 + 32.0
+    # F comes off the top; the shares split the rest
     q = make_plan(40)  # 2400 s - F: data 15 %, AMLNet 45 % (604 faces; at 45 min the evaluation is capped)
     assert q.images + q.negatives == int(0.15 * (2400 - F) / IMG)
     # AMLNet's last phase: 0.3 as many no-cart images (7/8 with the robot), 3/8 as many steps
@@ -217,7 +217,6 @@ def test_a_plan_never_spends_more_than_its_budget():
     """Every count at its stage's rate (module docstring of _plan) adds up to at most the budget,
     also where the refiner's cap is raised (a capped refiner's unused share had gone to AMLNet and
     the zoom stage already: counting it again overspent by up to 4.7 %, at 131.5 minutes from scratch)."""
-    F = 16 * 13.6 + 32.0
     for budget in np.arange(14.0, 260.0, 0.5):
         for warm in (True, False):
             try:

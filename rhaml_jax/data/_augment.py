@@ -99,8 +99,8 @@ def _on_some(key, images, prob: float, effect, strength_max: float):
     strength = strength_max * jax.random.uniform(ks, (hi,), images.dtype)
     # the first `lo` chosen always; the last of `hi` with the chance that makes the mean prob B
     keep = (jnp.arange(hi) < lo) | (jax.random.uniform(ku) < prob * b - lo)
-    done = jax.vmap(effect)(images[chosen], strength)
-    return images.at[chosen].set(jnp.where(keep[:, None, None, None], done, images[chosen]))
+    picked = images[chosen]
+    return images.at[chosen].set(jnp.where(keep[:, None, None, None], jax.vmap(effect)(picked, strength), picked))
 
 
 def _noise(key, images, sigma_max: float):
