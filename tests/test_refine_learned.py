@@ -38,6 +38,7 @@ def test_cli_trains_resumes_and_logs(run):
     rows = [json.loads(l) for l in (out / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in rows] == [2, 4] and all(np.isfinite(r["loss"]) for r in rows)
     assert "val_loss_pm" in rows[-1] and res["step"] == 4
+    assert (out / "metrics.png").stat().st_size > 1000  # the curves fit's report shows
     from rhaml_jax.train import main
 
     with pytest.raises(RhamlError, match="already holds a checkpoint"):

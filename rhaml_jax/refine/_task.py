@@ -60,8 +60,31 @@ def network_task(kind: str, cfg, tc, model, *, init_params: Callable, config_to_
     task = Task(name=cfg.name, params=init_params(cfg, jax.random.key(tc.seed)), batch_stats={}, opt_init=tx.init,
                 grad_step=gs, update=up, schedule=make_schedule(tc.lr, tc.steps, tc.warmup), meta=meta,
                 check_resume=check_resume, check_batch=lambda b, where: check_batch(b, tc.batch, where),
-                validate=None if val_source is None else validate)
+                validate=None if val_source is None else validate, plot=plot_losses)
     return task, (rep, bat)
+
+
+def plot_losses(rows: list[dict], path) -> None:
+    """metrics.png of a refinement-stage network: every training loss term and, where validated,
+    the same terms on the validation split (log scale; the terms are all positive)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = sorted({k for r in rows for k in r if k.startswith("loss")})
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for ax, prefix, style, title in ((axes[0], "", "-", "training loss"), (axes[1], "val_", "o-", "validation loss")):
+        for k in keys:
+            pts = [(r["step"], r[prefix + k]) for r in rows if prefix + k in r]
+            if pts:
+                ax.semilogy(*zip(*pts), style, label=k, alpha=0.8)
+        ax.set_title(title); ax.set_xlabel("step")
+        if ax.lines:
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 def check_fields(b, shapes: dict, what: str, where: str) -> None:
