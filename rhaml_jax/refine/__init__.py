@@ -215,7 +215,9 @@ def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
 
 
 DEFAULT_REFINER = "refiner_cpu"
-"""the shipped refiner that `load_stage`, `evaluate` and the demo use unless given another"""
+"""the shipped refiner that `load_stage`, `evaluate` and the demo use unless given another (chosen on
+validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit` runs', ship beside
+it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
 
 
 def shipped_refiner(model=None) -> Refiner:
