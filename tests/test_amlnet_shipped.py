@@ -103,10 +103,10 @@ def test_default_iml_localises_rendered_robots():
     assert np.median(dpsi) < 15.0, np.sort(dpsi)
 
 
-@pytest.mark.parametrize("name", [DEFAULT_REFINER, "refiner_fit167_cpu", "refiner_fit180_cpu"])
+@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, "refiner_cpu", "refiner_fit167_cpu", "refiner_fit180_cpu"}))
 def test_shipped_refiner_size_and_robot(name):
-    """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and those of the from-scratch
-    `fit` runs): within the size budget, finite, the Pioneer's (another robot is refused)."""
+    """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and the others): within the size
+    budget, finite, the Pioneer's (another robot is refused)."""
     import dataclasses
 
     from rhaml_jax.errors import RhamlError

@@ -54,10 +54,11 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     assert (out / "data" / "train_nocart" / "train").is_dir()
     assert checkpoint_meta(out / "networks" / "amlnet").get("exported_from") == str(out / "runs" / "amlnet_nocart")
     assert {p.resolve().parents[1].name for p in (out / "data" / "train_mix" / "train").iterdir()} == {"train", "train_v1"}
-    # the refiner's: v1 images first, then v3 ones from that run's weights
+    # the refiner's: v1 images first, then v3 and v1 together from that run's weights
     assert (out / "runs" / "refiner_v1" / "checkpoints").is_dir() and (out / "data" / "refine_v1" / "train").is_dir()
-
     assert checkpoint_meta(out / "runs" / "refiner").get("initialised_from") == str(out / "runs" / "refiner_v1")
+    assert {p.resolve().parents[1].name for p in (out / "data" / "refine_mix" / "train").iterdir()} == {"refine", "refine_v1"}
+    assert (out / "runs" / "refiner" / "metrics.png").stat().st_size > 1000  # the report's curves
     report = (out / "report.md").read_text()
     assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
     assert (out / "report_trajectories.png").stat().st_size > 1000

@@ -75,11 +75,14 @@ fine-tune, 18 with carts, 20 without).
 
 The refiner always starts from random weights, and likewise learns first on plain-look images
 (a twentieth as many as the training images, at 640 x 480; 0.05 s each at 604 faces), for 2/3
-of its steps, then on the v3 ones from those weights: chosen on the validation splits (eq. 8's
-point-matching loss after four test-time iterations, v3 / v1): v3 alone 0.339 / 0.298, v1 then
-v3 0.310 / 0.198, v1 then v3 + v1 0.346 / 0.169, v1 alone 0.628 / 0.170 (BENCHMARKS.md, "A
-curriculum for the refiner"); twice as many steps (4,000 + 2,000) were better again on both
-(0.279 / 0.174), so it takes up to 6,000 steps once AMLNet and the zoom stage are capped (the
+of its steps, then on the v3 and v1 ones together from those weights. Crop by crop (eq. 8's
+point-matching loss after four test-time iterations on the validation splits, v3 / v1): v3 alone
+0.339 / 0.298, v1 then v3 0.310 / 0.198, v1 then v3 + v1 0.346 / 0.169, v1 alone 0.628 / 0.170
+(BENCHMARKS.md, "A curriculum for the refiner"); through the pipeline, behind the same IML on the
+validation sequences, v1 then v3 + v1 is the better second phase on both looks (IML+IR+PGO ATE
+ours 0.025 against v3 alone's 0.027, the OOD look 0.023 against 0.050: BENCHMARKS.md, "The
+refiner's second phase on the mix"). Twice as many steps (4,000 + 2,000) were better again on both
+splits (0.279 / 0.174), so it takes up to 6,000 steps once AMLNet and the zoom stage are capped (the
 zoom stage's heading comes first: at 131 minutes from scratch the extra steps would have cost
 it 3,400 of its 17,000).
 
@@ -126,7 +129,7 @@ EXPORT_S = 32.0
 """the export stage: weights written, the flip calibration compiled and run (34 s in session 26)"""
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)
 ZOOM_V1_FRACTION = 12 / 17  # from scratch: the zoom stage's steps spent on v1 images before the v3 ones
-REFINER_V1_FRACTION = 2 / 3  # the refiner's steps spent on v1 images before the v3 ones
+REFINER_V1_FRACTION = 2 / 3  # the refiner's steps spent on v1 images before the v3 + v1 mix
 NOCART_IMAGE_FRACTION = 0.3  # AMLNet's last phase: no-cart images per v3 training image (6,000 of 20,000, as measured)
 NOCART_STEP_FRACTION = 3 / 8  # ... and its steps per first-phase step (1,500 after 4,000, as measured)
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}

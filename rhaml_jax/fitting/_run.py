@@ -8,7 +8,7 @@ DIR/
   data/train          v3 training set (BOP)            data/refine   the refiner's (BOP, 640 x 480)
   data/train_nocart   v3 without robot-like carts: AMLNet's last phase (BOP)
   data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
-  data/refine_v1      the refiner's plain-look (v1) images (BOP, 640 x 480)
+  data/refine_v1      the refiner's plain-look (v1) images (BOP, 640 x 480); data/refine_mix: both (links)
   runs/{amlnet,amlnet_nocart,zoom_v1,zoom,refiner_v1,refiner}   training runs (checkpoints, metrics.jsonl, metrics.png)
   networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
@@ -215,7 +215,12 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         train("refiner", plan.refiner_config, "refine_v1", plan.refiner_v1_steps, plan.refiner_batch, 4, 4, stage_dir="refiner_v1")
 
     def refiner_stage():
-        train("refiner", plan.refiner_config, "refine", plan.refiner_steps - plan.refiner_v1_steps, plan.refiner_batch, 4, 4,
+        """Then v3 and v1 crops together, from refiner_v1's weights: better than v3 alone behind the
+        same IML on both validation looks (BENCHMARKS.md, "The refiner's second phase on the mix")."""
+        from rhaml_jax.data import mix_sets
+
+        mix_sets(data / "refine_mix", [data / "refine", data / "refine_v1"])
+        train("refiner", plan.refiner_config, "refine_mix", plan.refiner_steps - plan.refiner_v1_steps, plan.refiner_batch, 4, 4,
               *init_from(runs / "refiner_v1"))
 
     def export_stage():
