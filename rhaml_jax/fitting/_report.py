@@ -126,7 +126,8 @@ def write_report(out: Path, model, plan: Plan) -> Path:
              f"steps of {plan.amlnet_batch}, then {plan.amlnet_nocart_steps} on {plan.nocart_images} + {plan.nocart_negatives} "
              f"images without robot-like carts, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
              f"{plan.refiner_steps} steps, the first {plan.refiner_v1_steps} on {plan.refine_v1_images} plain-look (v1) images "
-             f"at {plan.eval_width} x {plan.eval_height}; {plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
+             f"at {plan.eval_width} x {plan.eval_height}, the rest on those and {plan.refine_images} v3 ones together; "
+             f"{plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
              f"Distances x {plan.scale:g} of the Pioneer's (training depths {depths[0]:.2f}-{depths[1]:.2f} m, "
              f"circle radius {2.0 * plan.scale:.2f} m about {4.5 * plan.scale:.2f} m ahead); AMLNet and zoom "
              + ("fine-tuned from the shipped Pioneer networks." if plan.warm_start else
