@@ -61,6 +61,10 @@ class Args:
     """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
     align_predicted: bool = False
     """with --refiner: also run the alignment to the refiner's predicted mask (measured worse: BENCHMARKS.md)"""
+    fine_refiner: Path | None = None
+    """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
+    fine_iter: int = 2
+    """with --fine-refiner: `RefineConfig.fine_iter`"""
     scorer: Path | None = None
     """with --refiner: a heading scorer checkpoint (`train --stage scorer`): the heading search after the learned iterations"""
     flip_threshold: float = RefineConfig.flip_threshold
@@ -85,11 +89,12 @@ def summary(est, gt, ms=None) -> dict:
     return s
 
 
-def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None) -> list[dict]:
+def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None, fine=None) -> list[dict]:
     """Rows after each learned iteration (with a scorer: then after the heading search and the
-    post iterations) and, with --align-predicted, after the alignment to the predicted mask."""
-    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter)
-    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc))
+    post iterations; with a fine refiner: then after each of its iterations) and, with
+    --align-predicted, after the alignment to the predicted mask."""
+    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter)
+    f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc, fine=fine))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
     its, est, ms_it, ms_all, flip_prob = [], [], [], [], []
     for j, fr in enumerate(frames):
@@ -113,7 +118,9 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None)
     n_iter = ref.cfg.n_iter
     names = ["start"] + [f"learned iteration {k}" for k in range(1, n_iter + 1)]
     if sc is not None:
-        names += ["heading search (scorer)"] + [f"post iteration {k}" for k in range(1, its.shape[1] - n_iter - 1)]
+        names += ["heading search (scorer)"] + [f"post iteration {k}" for k in range(1, a.post_iter + 1)]
+    if fine is not None:
+        names += [f"fine iteration {k}" for k in range(1, a.fine_iter + 1)]
     rows = []
     for k, stage in enumerate(names):
         rows.append({"start": name, "stage": stage, "frames": len(gt), "stride": a.stride,
@@ -189,10 +196,11 @@ def main(a: Args) -> list[dict]:
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
     sc = None if a.scorer is None else load_scorer(a.scorer, data.load_bop_model(a.data[0]))
+    fine = None if a.fine_refiner is None else load_refiner(a.fine_refiner, data.load_bop_model(a.data[0]))
     for name in [n for n in a.starts if n in starts]:  # iml only with --iml-json
         init = starts[name]
         if ref is not None:
-            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame, sc)
+            rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame, sc, fine)
         kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
         for kind in kinds:
             est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init,

@@ -5,7 +5,7 @@
 # `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of experiments/pipeline_from_json.py.
 # Never the held-out set.
 #
-#   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner}
+#   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner[,fine]}
 #   LABEL=default bash experiments/validate_networks.sh                    # the shipped defaults
 set -e
 : "${LABEL:?}" "${DATA:=/work/data}" "${EV:=/work/runs/validation}"
@@ -13,6 +13,7 @@ PY=${PY:-python}
 mkdir -p "$EV"
 NETARGS=()
 [ -n "$NETS" ] && NETARGS=(--amlnet "$NETS/amlnet" --zoom "$NETS/zoom" --refiner "$NETS/refiner")
+[ -n "$NETS" ] && [ -e "$NETS/fine" ] && NETARGS+=(--fine-refiner "$NETS/fine")   # a cascade's second refiner
 json() { echo "$EV/${LABEL}_$(echo "$1" | tr / _).json"; }  # set -> its evaluate output (kept: a rerun skips it)
 ev() {  # set modules
   j=$(json "$1")

@@ -2,7 +2,7 @@
 paper's metrics (DESIGN.md section 5).
 
   python -m rhaml_jax.evaluate --data DIR [--scene ID] [--split S] --modules iml[,ir][,pgo] --json OUT
-      [--amlnet CKPT] [--zoom CKPT | --no-zoom] [--zoom-mirror] [--refiner CKPT] [--segmenter CKPT] [--scorer CKPT] [--pgo-mode batch|online]
+      [--amlnet CKPT] [--zoom CKPT | --no-zoom] [--zoom-mirror] [--refiner CKPT] [--fine-refiner CKPT] [--segmenter CKPT] [--scorer CKPT] [--pgo-mode batch|online]
       [--paper-information]
 
 Each scene is one rendezvous sequence (`rhaml_jax.sequence.load_scene`: its images and, for
@@ -61,6 +61,9 @@ class Args:
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; default: none)"""
+    fine_refiner: Path | None = None
+    """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
+    the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; default: none)"""
     pgo_mode: Literal["batch", "online"] = "batch"
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
@@ -133,7 +136,7 @@ def _load(args: Args, modules):
         from rhaml_jax import refine
 
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
-                                                    segmenter=args.segmenter, scorer=args.scorer)
+                                                    segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   calibrate_range=not args.no_range_calibration)

@@ -169,7 +169,7 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
     def one(frame):
         image, K, xypsi = frame
         return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
-                             segmenter=p.segmenter, scorer=p.scorer)
+                             segmenter=p.segmenter, scorer=p.scorer, fine=p.fine)
 
     out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
     keep = detected & ~out.declined

@@ -49,7 +49,7 @@ class Args:
     zoom_length_m: float | None = None
     """zoom: the robot length the crop is sized to (default: the config's, the built-in robot's 0.455 m)"""
     init: Path | None = None
-    """start from the weights of this checkpoint folder of the same network and config (e.g. rhaml_jax/checkpoints/amlnet_cpu, or a refiner run) instead of a random initialisation: fine-tuning"""
+    """start from the weights of this checkpoint folder of the same network and config (e.g. rhaml_jax/checkpoints/amlnet_cpu, or a refiner run) instead of a random initialisation: fine-tuning (a refinement-stage network: any config of the same network, e.g. refiner_fine_cpu from refiner_cpu)"""
     toy_data: bool = False
     """TEST ONLY: coloured rectangles instead of robot images (exercises the trainer; the model learns nothing about robots)"""
     progress: bool = True
@@ -132,8 +132,12 @@ def train_refiner(args: Args) -> dict:
         from rhaml_jax.refine._checkpoint import load_params
 
         params, init_cfg = load_params(args.init, args.stage, model, *stored)
-        if init_cfg != cfg:
-            raise RhamlError(f"--init {args.init}: holds a {init_cfg.name!r} {args.stage}, not --config {cfg.name!r}")
+        import jax
+
+        shapes = lambda p: jax.tree.map(lambda a: tuple(a.shape), p)  # noqa: E731
+        if shapes(params) != shapes(stored[1](cfg, jax.random.key(0))) or getattr(init_cfg, "luma", None) != getattr(cfg, "luma", None):
+            raise RhamlError(f"--init {args.init}: holds a {init_cfg.name!r} {args.stage}, whose network differs from "
+                             f"--config {cfg.name!r}'s")
         task = dataclasses.replace(task, params=params, meta={**task.meta, "initialised_from": str(args.init)})
     res = fit(task, tc, args.out, source, shardings=shardings, resume=args.resume,
               data_label=f"{args.stage} crops of BOP {args.data}", progress=args.progress)

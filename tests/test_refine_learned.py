@@ -49,7 +49,8 @@ def test_cli_trains_resumes_and_logs(run):
 
 def test_init_fine_tunes_from_a_run(run, tmp_path):
     """--init: a refiner run starts at another run's weights (at learning rate 0 it ends there),
-    records where they came from, and refuses a checkpoint of another config or network."""
+    also one of another config of the same network (a cascade's fine stage from a coarse one),
+    records where they came from, and refuses a checkpoint of another network or kind."""
     from rhaml_jax.amlnet.checkpoint import checkpoint_meta
     from rhaml_jax.train import main
 
@@ -61,7 +62,13 @@ def test_init_fine_tunes_from_a_run(run, tmp_path):
     for x, y in zip(jax.tree.leaves(tuned["params"]), jax.tree.leaves(res["params"])):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert checkpoint_meta(tmp_path / "ft")["initialised_from"] == str(out)
-    with pytest.raises(RhamlError, match=r"--init .*holds a 'refiner_micro' refiner, not --config 'refiner_cpu'"):
+    fine = main(["--stage", "refiner", "--config", "refiner_micro_fine", "--data", a["--data"], "--out",
+                 str(tmp_path / "fine"), "--init", str(out), "--steps", "2", "--batch", "2", "--lr", "0", "--warmup", "0",
+                 "--val-every", "2", "--val-batches", "1", "--no-progress"])  # another config of the same network
+    for x, y in zip(jax.tree.leaves(fine["params"]), jax.tree.leaves(res["params"])):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert load_refiner(tmp_path / "fine").cfg.starts == "fine"
+    with pytest.raises(RhamlError, match=r"--init .*holds a 'refiner_micro' refiner, whose network differs from --config 'refiner_cpu'"):
         main(["--stage", "refiner", "--config", "refiner_cpu", "--data", a["--data"], "--out", str(tmp_path / "x"),
               "--init", str(out), "--no-progress"])
     with pytest.raises(RhamlError, match=r"not a segmenter checkpoint"):
@@ -229,3 +236,47 @@ def test_the_papers_position_noise_scales_with_the_robot(bop_set):
     assert abs(xy1 - 0.15) < 0.01 and abs(xy39 - 0.15 * 0.39) < 0.004
     assert abs(psi1 - np.deg2rad(20)) < 0.03 and abs(psi39 - psi1) < 1e-12
 
+
+
+def test_fine_starts_are_a_coarse_refiners_residuals():
+    """`starts="fine"`: range off by N(0, 1 %) or N(0, 3 %), bearing N(0, 0.2 deg) or N(0, 0.6 deg),
+    heading N(0, 2 deg) or N(0, 6 deg), half each; never a flip; independent of the robot's scale."""
+    from rhaml_jax.refine.train import initial_pose
+
+    truth = np.array([4.0, -1.0, 2.0])
+    d = np.array([initial_pose(truth, np.random.default_rng(i), 1.0, "fine") for i in range(4000)])
+    rel = np.hypot(d[:, 0], d[:, 1]) / np.hypot(*truth[:2]) - 1
+    bearing = np.arctan2(d[:, 1], d[:, 0]) - np.arctan2(truth[1], truth[0])
+    dpsi = np.angle(np.exp(1j * (d[:, 2] - truth[2])))
+    assert abs(rel.std() - np.sqrt((0.01 ** 2 + 0.03 ** 2) / 2)) < 0.002 and abs(rel.mean()) < 0.002
+    assert abs(np.rad2deg(bearing.std()) - np.sqrt((0.2 ** 2 + 0.6 ** 2) / 2)) < 0.03
+    assert abs(np.rad2deg(dpsi.std()) - np.sqrt((2.0 ** 2 + 6.0 ** 2) / 2)) < 0.25 and np.rad2deg(np.abs(dpsi).max()) < 40
+    np.testing.assert_array_equal(initial_pose(truth, np.random.default_rng(3), 0.39, "fine"), d[3])
+    cfg = N.get_refiner_config("refiner_micro_fine")
+    with pytest.raises(RhamlError, match="RefinerConfig.starts 'tiny'"):
+        dataclasses.replace(cfg, starts="tiny")
+
+
+def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
+    """The cascade: `fine_iter` more iterations (rows of `iterates`) of the fine refiner after the
+    coarse ones; the coarse rows are the coarse refiner's alone; gradients reach the fine refiner."""
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    mesh = render.as_mesh(model)
+    coarse = load_refiner(out, model)
+    fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"))
+    fine = dataclasses.replace(fine, params=jax.tree.map(lambda a: a + 0.05, fine.params))  # a non-zero head
+    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    h = float(np.linalg.inv(f.T_w2c)[2, 3])
+    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    cfg = RefineConfig(camera_height_m=h, align=None, n_iter=2, fine_iter=3)
+    alone = refine(coarse, mesh, img, f.K, init, cfg)
+    both = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
+    assert alone.iterates.shape == (3, 3) and both.iterates.shape == (6, 3)
+    np.testing.assert_allclose(np.asarray(both.iterates[:3]), np.asarray(alone.iterates), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(both.xypsi), np.asarray(both.iterates[-1]), atol=1e-6)
+    assert np.abs(np.asarray(both.xypsi - alone.xypsi)).max() > 1e-4
+    g = jax.grad(lambda r: jnp.sum(refine(coarse, mesh, img, f.K, init, cfg, fine=r).xypsi))(fine)
+    leaves = jax.tree.leaves(g)
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves) and sum(float(jnp.abs(x).sum()) for x in leaves) > 0

@@ -64,6 +64,9 @@ class RefineConfig:
     """the scorer turns the heading by about 180 deg only if its softmax mass on the other side exceeds this"""
     post_iter: int = 1
     """learned iterations after the scorer's heading search (the position, re-read at the new heading)"""
+    fine_iter: int = 2
+    """iterations of the fine refiner (`StageParams.fine`, a cascade's second stage trained from
+    the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
@@ -80,7 +83,8 @@ class RefineResult(NamedTuple):
     #                             (with a scorer and no alignment: 2 P(same side) - 1, clipped at 0)
     score: jax.Array  # () the alignment's final loss (0 without alignment)
     iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one);
-    #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations
+    #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations;
+    #                      with a fine refiner fine_iter more rows: its iterations
     flip_prob: jax.Array  # () the scorer's probability that the heading faces the other way (-1: no scorer ran)
 
 
@@ -89,13 +93,14 @@ def _T_cam(xypsi, h):
 
 
 def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None,
-           segmenter: Segmenter | None = None, scorer: Scorer | None = None) -> RefineResult:
+           segmenter: Segmenter | None = None, scorer: Scorer | None = None, fine: Refiner | None = None) -> RefineResult:
     """Refines the planar estimate `init_xypsi` (3,) of the robot seen in `image` (H, W, 3)
     float32 in [0, 1] through intrinsics K (3, 3).
 
     With a refiner: n_iter learned iterations (re-rendering at each new pose); with a `scorer`
     too, then the heading search (`refine.scorer`: the best of rendered heading hypotheses, flips
-    included) and cfg.post_iter more learned iterations at the new heading. Then the silhouette
+    included) and cfg.post_iter more learned iterations at the new heading; with a `fine` refiner,
+    then cfg.fine_iter iterations of it (a DeepIM cascade). Then the silhouette
     alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
     image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
     else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
@@ -128,14 +133,15 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         corners = _corners(mesh)
         T_back = T_cam_robot(h).inverse()
 
-        def learned(xyp, n):
-            """n learned iterations from the planar pose xyp: (planar pose, roll and pitch)."""
+        def learned(xyp, n, net=refiner):
+            """n iterations of `net` from the planar pose xyp: (planar pose, roll and pitch)."""
+            rc = net.cfg
             T = _T_cam(xyp, h)
             for _ in range(n):
                 T1 = jaxlie.SE3(T.wxyz_xyz[None])
                 bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
                 obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
-                out = N.apply(rc, refiner.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
+                out = N.apply(rc, net.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
                 T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
                 iterates.append(frames.xypsi_from_se3(T_back @ T))
             return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2]
@@ -146,6 +152,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
+        if fine is not None and cfg.fine_iter:
+            xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine)
         if acfg is not None and segmenter is None:  # the mask head at the final pose, in the alignment's crop
             box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
             obs = _crop.crop_image(image, box, rc.crop, rc.crop)
@@ -234,16 +242,18 @@ class StageParams(NamedTuple):
     mesh: render.Mesh  # the robot's model
     segmenter: Segmenter | None = None  # the alignment's observed-mask network (None: no alignment)
     scorer: Scorer | None = None  # the heading scorer (None: the learned iterations keep the heading)
+    fine: Refiner | None = None  # a cascade's fine refiner (`RefinerConfig.starts` "fine"; None: none)
 
 
 def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
-               segmenter: str | Path | None = None, scorer: str | Path | None = None):
+               segmenter: str | Path | None = None, scorer: str | Path | None = None, fine: str | Path | None = None):
     """The pipeline's IR stage: (RefineConfig, StageParams) for `pipeline.PipelineModel.refiner`
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
     `DEFAULT_REFINER`; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
-    silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search."""
+    silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
+    with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade)."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
@@ -253,4 +263,5 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
     sc = None if scorer is None else load_scorer(scorer, check)
-    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc)
+    fn = None if fine is None else load_refiner(fine, check)
+    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)

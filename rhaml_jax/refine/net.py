@@ -58,6 +58,10 @@ class RefinerConfig:
     heading never learned with it (BENCHMARKS.md, "The refiner learns the heading")"""
     part_weights: tuple[float, float, float] = (1.0, 1.0, 10.0)
     """the disentangled loss's weights of its (image-plane offsets, depth, rotation) parts"""
+    starts: str = "coarse"
+    """the initial poses it trains from (`refine.train.initial_pose`): "coarse" (the paper's noise
+    and our IML's errors, flips included) or "fine" (what a coarse refiner's iterations leave:
+    centimetres and a few degrees), the second stage of a cascade (`RefineConfig.fine_iter`)"""
 
     def __post_init__(self):
         from rhaml_jax.errors import RhamlError
@@ -66,6 +70,8 @@ class RefinerConfig:
             raise RhamlError(f"RefinerConfig.loss {self.loss!r}: expected 'joint' or 'disentangled'")
         if len(self.part_weights) != 3 or min(self.part_weights) < 0 or max(self.part_weights) <= 0:
             raise RhamlError(f"RefinerConfig.part_weights {self.part_weights}: expected three weights >= 0, one > 0")
+        if self.starts not in ("coarse", "fine"):
+            raise RhamlError(f"RefinerConfig.starts {self.starts!r}: expected 'coarse' or 'fine'")
 
 
 def luminance(rgb):
@@ -80,9 +86,11 @@ def in_channels(cfg) -> int:
 
 
 REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerConfig(name="refiner_cpu_luma", luma=True),
-                   "refiner_micro": RefinerConfig(name="refiner_micro", crop=32,
-                                                                                   widths=(8, 16), hidden=32,
-                                                                                   n_points=64)}
+                   # the cascade's second stage: refiner_cpu's network on a tighter crop, trained from fine starts
+                   "refiner_fine_cpu": RefinerConfig(name="refiner_fine_cpu", margin=1.2, starts="fine"),
+                   "refiner_micro": RefinerConfig(name="refiner_micro", crop=32, widths=(8, 16), hidden=32, n_points=64),
+                   "refiner_micro_fine": RefinerConfig(name="refiner_micro_fine", crop=32, widths=(8, 16), hidden=32,
+                                                       n_points=64, margin=1.2, starts="fine")}  # the tests' cascade
 
 
 def named_config(configs: dict, name: str, what: str):

@@ -6,7 +6,9 @@ An example is a pure function of (seed, index): frame index mod N of the set, it
 drawn either as the paper's (ground truth + N(0, 0.15 m) on x, y and N(0, 20 deg) on psi; the
 0.15 m times the robot's `RobotModel.world_scale`, 1 for the Pioneer) or as
 our IML errs (range off by up to 15 %, bearing N(0, 1.5 deg), heading N(0, 10 deg), turned by
-180 deg one time in eight), half each. The crop box comes from the initial pose (DeepIM's
+180 deg one time in eight), half each; a cascade's fine stage (`RefinerConfig.starts` "fine") from
+what a coarse refiner leaves (range off by N(0, 1 %) or N(0, 3 %), bearing N(0, 0.2 deg) or
+N(0, 0.6 deg), heading N(0, 2 deg) or N(0, 6 deg), half each). The crop box comes from the initial pose (DeepIM's
 zoom-in, `rhaml_jax.crop.object_box`); the observed crop is `crop.crop_image_host`, the render
 at the initial pose is made inside the jitted step (`render.render`, hard RGB + mask).
 """
@@ -44,10 +46,18 @@ def _corners(vertices: np.ndarray) -> np.ndarray:
     return lo + sel * (hi - lo)
 
 
-def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0, starts: str = "coarse") -> np.ndarray:
     """(3,) an initial planar estimate around the true `xypsi` (see the module docstring); `scale`:
-    the robot's world scale, which the paper's 0.15 m position noise is multiplied by."""
+    the robot's world scale, which the paper's 0.15 m position noise is multiplied by; `starts`:
+    `RefinerConfig.starts`."""
     x, y, psi = xypsi
+    if starts == "fine":  # relative to the range: the residuals of a coarse refiner lie along the line of sight
+        wide = rng.random() < 0.5
+        r, b = np.hypot(x, y), np.arctan2(y, x)
+        r *= 1 + rng.normal(0, 0.03 if wide else 0.01)
+        b += rng.normal(0, np.deg2rad(0.6 if wide else 0.2))
+        psi = psi + rng.normal(0, np.deg2rad(6.0 if wide else 2.0))
+        return np.array([r * np.cos(b), r * np.sin(b), np.arctan2(np.sin(psi), np.cos(psi))])
     if rng.random() < 0.5:  # the paper's noise, in the robot's world
         sigma = 0.15 * scale
         return np.array([x + rng.normal(0, sigma), y + rng.normal(0, sigma), psi + rng.normal(0, np.deg2rad(20))])
@@ -92,7 +102,7 @@ class CropSource:
 
     def initial(self, xypsi: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(3,) the estimate the crop is centred on (drawn first): `initial_pose`."""
-        return initial_pose(xypsi, rng, self.scale)
+        return initial_pose(xypsi, rng, self.scale, getattr(self.cfg, "starts", "coarse"))
 
     def margin(self, rng: np.random.Generator) -> float:
         """The crop box's margin (drawn after the initial pose)."""
