@@ -145,3 +145,66 @@ def test_init_starts_a_luma_network_from_a_colour_checkpoint_of_the_same_archite
     small = dataclasses.replace(get_config("zoom_cpu_luma"), zoom_length_m=0.178, zoom_centre_z_m=0.09)
     params, _ = initial_weights(small, shipped_checkpoint("zoom_luma_cpu"))
     assert jax.tree.structure(params) == jax.tree.structure(build(small, abstract=True).params)
+
+
+def _ycbcr_turn(x, angle):
+    """x (..., 3) RGB with its BT.601 (Cb, Cr) turned by `angle` about the grey axis (luminance
+    kept): a hue rotation of the whole image."""
+    M = np.array([[0.299, -0.168736, 0.5], [0.587, -0.331264, -0.418688], [0.114, 0.5, -0.081312]])
+    ycc = x @ M
+    c, s = np.cos(angle), np.sin(angle)
+    ycc[..., 1:] = ycc[..., 1:] @ np.array([[c, s], [-s, c]])
+    return (ycc @ np.linalg.inv(M)).astype(np.float32)
+
+
+def test_chroma_contrast_reads_chroma_but_no_hue_or_tint():
+    """The chroma channel (cpu_heat_chroma): equal to a brute-force box mean; unchanged by a
+    global tint (a constant added to every pixel) or a hue rotation of the whole image, so the
+    network's output is too; changed by a local colour that differs from its surroundings."""
+    from rhaml_jax.amlnet.model import chroma_contrast
+
+    rng = np.random.default_rng(0)
+    a = (rng.random((1, 24, 30, 3)) * 0.4 + 0.3).astype(np.float32)
+    c = np.asarray(chroma_contrast(jnp.asarray(a), 5))[0]
+    M = np.array([[-0.168736, 0.5], [-0.331264, -0.418688], [0.5, -0.081312]])
+    cbcr = a[0] @ M
+    i, j = 0, 13  # an edge pixel: the mean over the window's pixels inside the image
+    ref = cbcr[max(0, i - 2):i + 3, max(0, j - 2):j + 3].reshape(-1, 2).mean(0)
+    assert abs(c[i, j] - np.linalg.norm(cbcr[i, j] - ref)) < 1e-4
+    tint = a + np.array([0.05, -0.03, 0.08], np.float32)
+    np.testing.assert_allclose(np.asarray(chroma_contrast(jnp.asarray(tint), 5))[0], c, atol=1e-5)
+    turned = _ycbcr_turn(a, 2.0)
+    assert turned.min() >= 0 and turned.max() <= 1
+    np.testing.assert_allclose(np.asarray(chroma_contrast(jnp.asarray(turned), 5))[0], c, atol=1e-5)
+    patch = a.copy()
+    patch[0, 10:14, 10:14] = a[0, 10:14, 10:14] @ np.eye(3)[[2, 0, 1]]  # the channels swapped there
+    assert np.abs(np.asarray(chroma_contrast(jnp.asarray(patch), 5))[0] - c)[10:14, 10:14].max() > 0.02
+
+    cfg = dataclasses.replace(get_config("tiny_heat"), chroma=True, chroma_window=5)
+    net = build(cfg, jax.random.key(1))
+    x = (rng.random((1, *cfg.input_hw, 3)) * 0.4 + 0.3).astype(np.float32)
+    out, out_turned = (np.asarray(net.apply(net.params, net.batch_stats, jnp.asarray(v))) for v in (x, _ycbcr_turn(x, 2.0)))
+    np.testing.assert_allclose(out, out_turned, atol=1e-4 * np.abs(out).max())
+
+
+def test_a_luma_checkpoint_starts_a_chroma_network_exactly():
+    """`initial_weights` moves the third luminance channel's stem weights onto the first: the
+    chroma network starts with the luma network's outputs; chroma needs luma and an odd window."""
+    from rhaml_jax.amlnet import shipped_checkpoint
+    from rhaml_jax.amlnet.checkpoint import load_model
+    from rhaml_jax.amlnet.trainer import initial_weights
+    from rhaml_jax.errors import RhamlError
+
+    net0, p0, s0 = load_model(shipped_checkpoint("heat_nocart_cpu"))
+    cfg = get_config("cpu_heat_chroma")
+    p1, s1 = initial_weights(cfg, shipped_checkpoint("heat_nocart_cpu"))
+    net1 = build(cfg, abstract=True)
+    x = jnp.asarray(np.random.default_rng(2).random((1, *cfg.input_hw, 3)), jnp.float32)
+    a, b = np.asarray(net0.apply(p0, s0, x)), np.asarray(net1.apply(p1, s1, x))
+    np.testing.assert_allclose(a, b, atol=1e-5 * np.abs(a).max())
+    assert np.abs(np.asarray(p1["stem"][...])[:, :, 2]).max() == 0
+    assert np.abs(np.asarray(p0["stem"][...])[:, :, 2]).max() > 0  # the loaded state is left as it was
+    with pytest.raises(RhamlError, match="chroma .* needs luma"):
+        dataclasses.replace(cfg, luma=False)
+    with pytest.raises(RhamlError, match="chroma_window must be odd"):
+        dataclasses.replace(cfg, chroma_window=4)

@@ -75,6 +75,12 @@ class AMLNetConfig:
     luma: the network sees the image's luminance (replicated to three channels) instead of
       its colours, so no decision can rest on a hue (the held-out set paints the robot in
       hues training never gives a part).
+    chroma: with luma, the third channel carries the local chroma contrast instead (`model.
+      chroma_contrast`: the distance of each pixel's BT.601 (Cb, Cr) from their mean over a
+      `chroma_window`-pixel box): still no hue, and a global tint of the light or a hue rotation of
+      the whole image changes it little, but a robot whose colour differs from its surroundings
+      stands out where its luminance does not. A luma checkpoint starts a chroma one exactly
+      (`trainer.initial_weights` moves the third channel's stem weights onto the first).
     """
 
     name: str
@@ -97,10 +103,16 @@ class AMLNetConfig:
     zoom_factor: float = 2.0
     head: Literal["global", "heatmap"] = "global"
     luma: bool = False
+    chroma: bool = False
+    chroma_window: int = 15
     kind: Literal["amlnet"] = "amlnet"
 
     def __post_init__(self):
         n = len(self.depths)
+        if self.chroma and not self.luma:
+            raise RhamlError(f"config {self.name}: chroma (the local chroma contrast channel) needs luma")
+        if self.chroma_window < 1 or self.chroma_window % 2 == 0:
+            raise RhamlError(f"config {self.name}: chroma_window must be odd and positive, got {self.chroma_window}")
         if not (len(self.dims) == len(self.mlp_ratios) == n and n >= 1):
             raise RhamlError(f"config {self.name}: depths, dims and mlp_ratios need equal lengths")
         if any(k % 2 == 0 or k < 1 for k in self.acn_kernels):
@@ -211,6 +223,9 @@ CONFIGS: dict[str, ModelConfig] = {
                              luma=True),
     "cpu_heat": _amlnet("cpu_heat", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128), mlp_ratios=(4, 4, 4),
                         angle_head="cossin", head="heatmap", luma=True, layer_scale_init=0.1),
+    "cpu_heat_chroma": _amlnet("cpu_heat_chroma", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128),
+                               mlp_ratios=(4, 4, 4), angle_head="cossin", head="heatmap", luma=True, chroma=True,
+                               layer_scale_init=0.1),
     "frontnet": FrontNetConfig("frontnet"),
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),
