@@ -63,7 +63,7 @@ class Args:
     """with --refiner: also run the alignment to the refiner's predicted mask (measured worse: BENCHMARKS.md)"""
     fine_refiner: Path | None = None
     """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
-    fine_iter: int = 2
+    fine_iter: int = 1
     """with --fine-refiner: `RefineConfig.fine_iter`"""
     scorer: Path | None = None
     """with --refiner: a heading scorer checkpoint (`train --stage scorer`): the heading search after the learned iterations"""

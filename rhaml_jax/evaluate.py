@@ -63,7 +63,8 @@ class Args:
     iterations, the best of rendered heading hypotheses, flips included; default: none)"""
     fine_refiner: Path | None = None
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
-    the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; default: none)"""
+    the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; "none": without;
+    default: the shipped `refine.DEFAULT_FINE_REFINER` when --refiner is not given, else none)"""
     pgo_mode: Literal["batch", "online"] = "batch"
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False

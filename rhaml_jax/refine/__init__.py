@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -64,9 +64,10 @@ class RefineConfig:
     """the scorer turns the heading by about 180 deg only if its softmax mass on the other side exceeds this"""
     post_iter: int = 1
     """learned iterations after the scorer's heading search (the position, re-read at the new heading)"""
-    fine_iter: int = 2
+    fine_iter: int = 1
     """iterations of the fine refiner (`StageParams.fine`, a cascade's second stage trained from
-    the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration"""
+    the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration
+    (on validation the first helps, later ones drift: BENCHMARKS.md, "A fine refiner")"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
@@ -228,6 +229,11 @@ validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit
 it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
 
 
+DEFAULT_FINE_REFINER = "refiner_fine_cpu"
+"""the shipped cascade's fine refiner (`RefinerConfig.starts` "fine"), run after `DEFAULT_REFINER`
+unless another refiner is given (chosen on validation: BENCHMARKS.md, "A fine refiner")"""
+
+
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -251,7 +257,8 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
-    `DEFAULT_REFINER`; with `segmenter` (a checkpoint folder) the learned iterations are followed by the
+    `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINER` (`fine` "none": without it; given
+    another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade)."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -263,5 +270,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
     sc = None if scorer is None else load_scorer(scorer, check)
-    fn = None if fine is None else load_refiner(fine, check)
+    if fine is None and ckpt_dir is None:
+        fine = shipped_checkpoint(DEFAULT_FINE_REFINER)
+    fn = None if fine is None or str(fine) == "none" else load_refiner(fine, check)
     return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
