@@ -12,7 +12,7 @@ vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
 
 `IMLModel` is the static part (network definitions and switches; hashed by identity, so each
 loaded model compiles once per input shape), `IMLParams` the arrays. `load_iml` builds both from
-checkpoint folders (default: the shipped `heat_nocart_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
+checkpoint folders (default: the shipped `heat_chroma_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
 `DEFAULT_ZOOM`).
 """
 
@@ -129,8 +129,11 @@ def check_mirror_symmetric(model, model_path) -> None:
 # pioneer3dx --budget-minutes 130 --from-scratch` (session 19, BENCHMARKS.md "An out-of-distribution
 # validation set"); `heat_nocart_cpu` is `heat_fit_cpu` fine-tuned on v3 images without robot-like
 # carts, which had taught it to doubt near robots seen end-on (session 22, BENCHMARKS.md "Carts
-# and the end-on misses"). Before: `heat_fit_cpu`, and before that `amlnet_cpu` + `zoom_cpu`.
-DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_nocart_cpu", "zoom_fit_cpu"
+# and the end-on misses"); `heat_chroma_cpu` is `heat_nocart_cpu` fine-tuned with the local chroma
+# contrast as its third input channel (config `chroma`; session 29, BENCHMARKS.md "Chroma contrast
+# instead of a third copy of the luminance"). Before: `heat_nocart_cpu`, `heat_fit_cpu`, and before
+# that `amlnet_cpu` + `zoom_cpu`.
+DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_chroma_cpu", "zoom_fit_cpu"
 
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,

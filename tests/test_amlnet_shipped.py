@@ -26,7 +26,7 @@ MAX_MEDIAN_DPSI_DEG = 20.0
 
 @pytest.mark.parametrize("name,config", [("amlnet_cpu", "cpu"), ("zoom_cpu", "zoom_cpu"), ("heat_cpu", "cpu_heat"),
                                          ("zoom_luma_cpu", "zoom_cpu_luma"), ("heat_fit_cpu", "cpu_heat"),
-                                         ("heat_nocart_cpu", "cpu_heat"), ("zoom_fit_cpu", "zoom_cpu_luma"),
+                                         ("heat_nocart_cpu", "cpu_heat"), ("heat_chroma_cpu", "cpu_heat_chroma"), ("zoom_fit_cpu", "zoom_cpu_luma"),
                                          ("heat_fit167_cpu", "cpu_heat"), ("zoom_fit167_cpu", "zoom_cpu_luma")])
 def test_shipped_checkpoint_size_and_config(name, config):
     path = shipped_checkpoint(name)

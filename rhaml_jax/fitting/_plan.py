@@ -66,7 +66,7 @@ of end-on. Measured as a fine-tune of the from-scratch `fit` AMLNet (`heat_fit_c
 on 6,000 no-cart images for 1,500 steps from its weights at half the learning rate: robots
 missed on the validation sequences 18/3/31/5 (ours) and 85/93 (OOD) -> 7/0/6/0 and 37/65, where
 the same fine-tune with carts gave 25/3/59/13 and 95/86 (BENCHMARKS.md, "Carts and the end-on
-misses"; the shipped default `heat_nocart_cpu`). The phase keeps that ratio: 0.3 no-cart images
+misses"; the shipped `heat_nocart_cpu`). The phase keeps that ratio: 0.3 no-cart images
 per v3 image (`NOCART_IMAGE_FRACTION`), 3/8 of a step per first-phase step
 (`NOCART_STEP_FRACTION`); half as many steps found the same end-on robots but read them less
 accurately (BENCHMARKS.md, "AMLNet's no-cart phase in `fit`"). The first phase keeps the carts,
