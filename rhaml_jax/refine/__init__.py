@@ -2,7 +2,7 @@
 silhouette alignment through our differentiable renderer.
 
 Public API:
-- `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None, segmenter=None) -> RefineResult`:
+- `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None, segmenter=None, scorer=None, fine=None) -> RefineResult`:
   the pipeline's entry point (pure JAX, jit-able with cfg and the nets static, vmappable over frames);
 - `load_refiner(ckpt_dir, model=None) -> Refiner` (a checkpoint of another robot is refused);
 - `load_segmenter(ckpt_dir, model=None) -> Segmenter`, `observed_mask`: the robot's mask in a crop
@@ -136,13 +136,13 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
 
         def learned(xyp, n, net=refiner):
             """n iterations of `net` from the planar pose xyp: (planar pose, roll and pitch)."""
-            rc = net.cfg
+            nc = net.cfg
             T = _T_cam(xyp, h)
             for _ in range(n):
                 T1 = jaxlie.SE3(T.wxyz_xyz[None])
-                bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=rc.margin))
-                obs = _crop.crop_image(image, bx, rc.crop, rc.crop)
-                out = N.apply(rc, net.params, render_input(mesh, rc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
+                bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=nc.margin))
+                obs = _crop.crop_image(image, bx, nc.crop, nc.crop)
+                out = N.apply(nc, net.params, render_input(mesh, nc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
                 T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
                 iterates.append(frames.xypsi_from_se3(T_back @ T))
             return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2]
