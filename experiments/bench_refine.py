@@ -65,6 +65,10 @@ class Args:
     """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
     fine_iter: int = 1
     """with --fine-refiner: `RefineConfig.fine_iter`"""
+    fine_views: int = RefineConfig.fine_views
+    """with --fine-refiner: `RefineConfig.fine_views` (starts averaged)"""
+    fine_spread_scale: float = 1.0
+    """with --fine-views > 1: `RefineConfig.fine_spread` times this"""
     scorer: Path | None = None
     """with --refiner: a heading scorer checkpoint (`train --stage scorer`): the heading search after the learned iterations"""
     flip_threshold: float = RefineConfig.flip_threshold
@@ -93,7 +97,8 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     """Rows after each learned iteration (with a scorer: then after the heading search and the
     post iterations; with a fine refiner: then after each of its iterations) and, with
     --align-predicted, after the alignment to the predicted mask."""
-    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter)
+    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
+                      fine_views=a.fine_views, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
     f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc, fine=fine))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
     its, est, ms_it, ms_all, flip_prob = [], [], [], [], []

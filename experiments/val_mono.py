@@ -4,10 +4,11 @@ saturation and value (drawn once, seeded). Neither hue is the held-out set's (te
 and the rooms and lights are ours, so nothing here previews the held-out set; it asks whether
 the heading survives the loss of the parts' own colours (the tyres' dark, the body's red).
 
-    python experiments/val_mono.py --out /work/data/val_mono [--frames 300]
+    python experiments/val_mono.py --out /work/data/val_mono [--frames 300] [--scenarios sine circle]
 
-writes OUT/{purple,orange,grey}.ply (the robot in metres, recoloured) and OUT/sine_{look}
-(`generate --scenario sine --seed 7 --robot OUT/{look}.ply`).
+writes OUT/{purple,orange,grey}.ply (the robot in metres, recoloured) and OUT/{scenario}_{look}
+(`generate --scenario SCENARIO --seed 7 --robot OUT/{look}.ply`; the sine alone by default, as
+session 25 used it; `experiments/validate_networks.sh` scores the circle too).
 """
 
 from __future__ import annotations
@@ -50,13 +51,17 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--scenarios", nargs="+", default=["sine"], choices=["circle", "sine"])
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     for k, look in enumerate(LOOKS):
         ply = args.out / f"{look}.ply"
         recoloured(look, 100 + k).export(ply)
-        subprocess.run([sys.executable, "-m", "rhaml_jax.generate", "--out", str(args.out / f"sine_{look}"), "--scenario", "sine",
-                        "--frames", str(args.frames), "--seed", "7", "--robot", str(ply), "--workers", "1"], check=True)
+        for scenario in args.scenarios:
+            out = args.out / f"{scenario}_{look}"
+            if not (out / "test" / "000000" / "scene_gt.json").exists():  # a finished set is kept
+                subprocess.run([sys.executable, "-m", "rhaml_jax.generate", "--out", str(out), "--scenario", scenario,
+                                "--frames", str(args.frames), "--seed", "7", "--robot", str(ply), "--workers", "1"], check=True)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 #!/bin/bash
 # Scores one set of networks on the validation sets, as the shipping choices are made
-# (BENCHMARKS.md, "Carts and the end-on misses"): ours (circle + sine of seeds 7 and 8, 500 frames
-# each) and the OOD look (circle + sine with odometry; random and background for detection), with
-# `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of experiments/pipeline_from_json.py.
-# Never the held-out set.
+# (BENCHMARKS.md, "How a default is chosen"): ours (circle + sine of seeds 7 and 8, 500 frames
+# each), the OOD look (circle + sine with odometry; random and background for detection) and the
+# one-paint looks (circle + sine of seed 7, 300 frames each, the robot purple, orange or grey:
+# experiments/val_mono.py), with `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of
+# experiments/pipeline_from_json.py. Never the held-out set. Two labels are compared by
+# experiments/compare_validation.py.
 #
 #   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner[,fine]}
 #   LABEL=default bash experiments/validate_networks.sh                    # the shipped defaults
@@ -21,10 +23,12 @@ ev() {  # set modules
 }
 OURS="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine"
 OOD="val_ood/circle val_ood/sine"
-for d in $OURS $OOD; do ev "$d" iml,ir,pgo; done
+MONO=$(for c in purple orange grey; do for s in circle sine; do echo "val_mono/${s}_$c"; done; done)
+for d in $OURS $OOD $MONO; do ev "$d" iml,ir,pgo; done
 for d in val_ood/random val_ood/background; do ev "$d" iml,ir; done
 args=(--set ours); for d in $OURS; do args+=("$(json "$d")" "$DATA/$d"); done
 args+=(--set ood); for d in $OOD; do args+=("$(json "$d")" "$DATA/$d"); done
+args+=(--set mono); for d in $MONO; do args+=("$(json "$d")" "$DATA/$d"); done
 $PY experiments/pipeline_from_json.py "${args[@]}" --out "$EV/${LABEL}_summary.json"
 for d in val_ood/random val_ood/background; do
   $PY -c "import json,sys; m=json.load(open(sys.argv[1]))['metrics']; print(sys.argv[2], 'detection accuracy', round(m['detection_accuracy'], 3))" \

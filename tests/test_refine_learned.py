@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rhaml_jax import camera, frames, render
 from rhaml_jax.camera import DEFAULT_CAMERA
@@ -280,3 +282,49 @@ def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
     g = jax.grad(lambda r: jnp.sum(refine(coarse, mesh, img, f.K, init, cfg, fine=r).xypsi))(fine)
     leaves = jax.tree.leaves(g)
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves) and sum(float(jnp.abs(x).sum()) for x in leaves) > 0
+
+
+def test_fine_views_average_the_fine_refiner_from_starts_around_the_pose(run, bop_set):
+    """`RefineConfig.fine_views`: the fine refiner runs once from each `view_starts` pose and its
+    answers are averaged (the heading as a unit vector); one view is the plain cascade."""
+    from rhaml_jax.refine import view_starts
+
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    mesh = render.as_mesh(model)
+    coarse = load_refiner(out, model)
+    fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"),
+                               params=jax.tree.map(lambda a: a + 0.05, coarse.params))
+    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    h = float(np.linalg.inv(f.T_w2c)[2, 3])
+    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    cfg = RefineConfig(camera_height_m=h, align=None, n_iter=1, fine_iter=1, fine_views=4)
+    many = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
+    after_coarse = many.iterates[1]
+    singles = np.stack([np.asarray(refine(fine, mesh, img, f.K, s, cfg).xypsi)  # one iteration of the fine refiner
+                        for s in view_starts(after_coarse, 4, cfg.fine_spread)])
+    np.testing.assert_allclose(np.asarray(many.xypsi[:2]), singles[:, :2].mean(0), atol=1e-4)
+    psi = np.arctan2(np.sin(singles[:, 2]).mean(), np.cos(singles[:, 2]).mean())
+    np.testing.assert_allclose(float(many.xypsi[2]), psi, atol=1e-4)
+    assert many.iterates.shape == (3, 3) and np.all(np.isfinite(np.asarray(many.pose)))
+    for bad in ({"fine_views": 9}, {"fine_views": 0}, {"fine_spread": (0.01, -0.1, 0.0)}):
+        with pytest.raises(RhamlError, match="RefineConfig.fine_"):
+            RefineConfig(**bad)
+
+
+@settings(max_examples=25, deadline=None)
+@given(x=st.floats(1.0, 8.0), y=st.floats(-3.0, 3.0), psi=st.floats(-3.1, 3.1), views=st.sampled_from([2, 4, 6, 8]))
+def test_view_starts_are_centred_on_the_pose(x, y, psi, views):
+    """An even number of views is centred on the pose in log range, bearing and heading, each
+    start off by exactly the spread in each."""
+    from rhaml_jax.refine import view_starts
+
+    spread = (0.02, 0.004, 0.05)
+    s = np.asarray(view_starts(jnp.array([x, y, psi], jnp.float32), views, spread), np.float64)
+    lr = np.log(np.hypot(s[:, 0], s[:, 1]) / np.hypot(x, y))
+    db = np.arctan2(s[:, 1], s[:, 0]) - np.arctan2(y, x)
+    dpsi = s[:, 2] - psi
+    for d, sp in ((lr, spread[0]), (db, spread[1]), (dpsi, spread[2])):
+        np.testing.assert_allclose(np.abs(d), sp, rtol=2e-3, atol=2e-5)
+        assert abs(d.mean()) < 2e-5 + 1e-3 * sp

@@ -37,7 +37,13 @@ from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_tar
 
 __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "view_starts", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+
+
+# The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
+# pairs so that the first V of them (V even) average to zero offset.
+_VIEW_SIGNS = np.array([(1, 1, 1), (-1, -1, -1), (1, -1, -1), (-1, 1, 1),
+                        (-1, 1, -1), (1, -1, 1), (-1, -1, 1), (1, 1, -1)], np.float32)
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -68,10 +74,24 @@ class RefineConfig:
     """iterations of the fine refiner (`StageParams.fine`, a cascade's second stage trained from
     the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration
     (on validation the first helps, later ones drift: BENCHMARKS.md, "A fine refiner")"""
+    fine_views: int = 1
+    """the fine refiner runs from this many starts around the pose and its answers are averaged
+    (`view_starts`: 1 = the pose alone; at most 8)"""
+    fine_spread: tuple[float, float, float] = (0.01, float(np.deg2rad(0.2)), float(np.deg2rad(2.0)))
+    """the views' offsets: log range, bearing (rad), heading (rad); the fine refiner's training
+    starts' smaller spreads (`RefinerConfig.starts` "fine")"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
     at 0.3, 0.92 at 0.5)"""
+
+    def __post_init__(self):
+        from rhaml_jax.errors import RhamlError
+
+        if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
+            raise RhamlError(f"RefineConfig.fine_views must be in 1..{len(_VIEW_SIGNS)}, got {self.fine_views}")
+        if len(self.fine_spread) != 3 or min(self.fine_spread) < 0:
+            raise RhamlError(f"RefineConfig.fine_spread must be 3 spreads >= 0 (log range, bearing, heading), got {self.fine_spread}")
 
 
 class RefineResult(NamedTuple):
@@ -132,20 +152,13 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         rc = refiner.cfg
         n_iter = rc.n_iter if cfg.n_iter is None else cfg.n_iter
         corners = _corners(mesh)
-        T_back = T_cam_robot(h).inverse()
 
         def learned(xyp, n, net=refiner):
-            """n iterations of `net` from the planar pose xyp: (planar pose, roll and pitch)."""
-            nc = net.cfg
-            T = _T_cam(xyp, h)
-            for _ in range(n):
-                T1 = jaxlie.SE3(T.wxyz_xyz[None])
-                bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=nc.margin))
-                obs = _crop.crop_image(image, bx, nc.crop, nc.crop)
-                out = N.apply(nc, net.params, render_input(mesh, nc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
-                T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
-                iterates.append(frames.xypsi_from_se3(T_back @ T))
-            return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2]
+            """n iterations of `net` from the planar pose xyp: (planar pose, roll and pitch); each
+            iterate is kept as a row of `iterates`."""
+            xyp, rp, its = _iterate(net, mesh, corners, image, K, h, xyp, n)
+            iterates.extend(its)
+            return xyp, rp
 
         xyp, roll_pitch = learned(safe, n_iter)
         if scorer is not None:
@@ -154,7 +167,12 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
         if fine is not None and cfg.fine_iter:
-            xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine)
+            if cfg.fine_views > 1:
+                xyp, roll_pitch, its = _multi_view(fine, mesh, corners, image, K, h, xyp, cfg.fine_iter, cfg.fine_views,
+                                                   cfg.fine_spread)
+                iterates.extend(its)
+            else:
+                xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine)
         if acfg is not None and segmenter is None:  # the mask head at the final pose, in the alignment's crop
             box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
             obs = _crop.crop_image(image, box, rc.crop, rc.crop)
@@ -183,6 +201,54 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
     return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(declined, 0.0, conf), score, its,
                         jnp.where(declined, -1.0, flip_prob))
+
+
+def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int):
+    """n learned iterations of `net` from the planar pose xyp (3,), re-rendering between them:
+    (planar pose (3,), roll and pitch (2,), the n iterates as a list of (3,))."""
+    from rhaml_jax.refine import net as N
+    from rhaml_jax.refine.train import render_input
+
+    nc = net.cfg
+    T_back = T_cam_robot(h).inverse()
+    T = _T_cam(xyp, h)
+    its = []
+    for _ in range(n):
+        T1 = jaxlie.SE3(T.wxyz_xyz[None])
+        bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=nc.margin))
+        obs = _crop.crop_image(image, bx, nc.crop, nc.crop)
+        out = N.apply(nc, net.params, render_input(mesh, nc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
+        T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
+        its.append(frames.xypsi_from_se3(T_back @ T))
+    return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2], its
+
+
+def view_starts(xyp, views: int, spread) -> jax.Array:
+    """`views` starting poses (views, 3) around the planar pose xyp (3,): the range scaled by
+    exp(+-spread[0]), the bearing and the heading turned by +-spread[1] and +-spread[2] (rad), the
+    signs the corners of a cube in antipodal pairs (so an even number of views is centred on xyp)."""
+    if not 1 <= views <= len(_VIEW_SIGNS):
+        from rhaml_jax.errors import RhamlError
+
+        raise RhamlError(f"view_starts: views must be in 1..{len(_VIEW_SIGNS)}, got {views}")
+    d = jnp.asarray(_VIEW_SIGNS[:views]) * jnp.asarray(spread, jnp.float32)  # (V, 3)
+    r = jnp.hypot(xyp[0], xyp[1])  # > 0: check_init declines starts at the camera
+    b = jnp.arctan2(xyp[1], xyp[0])
+    rv, bv = r * jnp.exp(d[:, 0]), b + d[:, 1]
+    return jnp.stack([rv * jnp.cos(bv), rv * jnp.sin(bv), xyp[2] + d[:, 2]], 1)
+
+
+def _circular_mean(p):
+    """The mean over axis 0 of planar poses p (V, 3), the heading as the direction of the mean unit vector."""
+    return jnp.concatenate([p[:, :2].mean(0), jnp.arctan2(jnp.sin(p[:, 2]).mean(0), jnp.cos(p[:, 2]).mean(0))[None]])
+
+
+def _multi_view(net: Refiner, mesh, corners, image, K, h, xyp, n: int, views: int, spread):
+    """`_iterate` from each of `view_starts` at once, averaged (test-time augmentation: each start
+    crops and renders the robot a little differently, so the network's per-crop errors average out)."""
+    run = jax.vmap(lambda s: _iterate(net, mesh, corners, image, K, h, s, n))
+    p, rp, its = run(view_starts(xyp, views, spread))  # (V, 3), (V, 2), n x (V, 3)
+    return _circular_mean(p), rp.mean(0), [_circular_mean(i) for i in its]
 
 
 def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_threshold: float):
