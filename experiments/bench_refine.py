@@ -65,6 +65,9 @@ class Args:
     """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
     fine_iter: int = 1
     """with --fine-refiner: `RefineConfig.fine_iter`"""
+    oracle_from_learned: bool = False
+    """with --refiner: also align to the ground-truth masks from the learned iterations' last pose
+    (what a perfect mask would add after them)"""
     fine_views: int = RefineConfig.fine_views
     """with --fine-refiner: `RefineConfig.fine_views` (starts averaged)"""
     fine_spread_scale: float = 1.0
@@ -206,6 +209,13 @@ def main(a: Args) -> list[dict]:
         init = starts[name]
         if ref is not None:
             rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame, sc, fine)
+            if a.oracle_from_learned:
+                last = np.asarray(per_frame[-1]["learned_iterates"])[:, -1]
+                est, ms, *_ = aligned(mesh, cfg, None, frames, last)
+                per_frame[-1]["learned_then_oracle"] = est.tolist()
+                rows.append({"start": name, "stage": "learned + alignment (gt masks)", "frames": len(gt), "stride": a.stride,
+                             **summary(est, gt, ms)})
+                print(json.dumps(rows[-1]), flush=True)
         kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
         for kind in kinds:
             est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init,

@@ -5,18 +5,20 @@
 
 A and B are labels of `experiments/validate_networks.sh` runs (EV/{label}_{set}.json). Per row
 (IML, IML+PGO, IML+IR, IML+IR+PGO; the pose-graph rows refitted from the stored estimates as
-`pipeline_from_json.py` does) the statistic is the geometric mean over sequences of B's ATE over
-A's: a sequence is the unit of evidence (session 29: the chroma AMLNet's pooled IML+PGO ATE on our
-look was 4 % better while one of the four sequences was 53 % worse), and a ratio weighs a 0.02 m
-sequence like a 1 m one. Its 2.5-97.5 % interval comes from a paired two-level bootstrap, seeded:
-each look's sequences drawn with replacement, then, in each drawn sequence, moving blocks of
-`--block` consecutive frames (frames are not independent), the same draws for both labels.
+`pipeline_from_json.py` does) and figure (the ATE, and the RMS position error alone: a flipped
+frame's 180 deg dominates the ATE of the single-frame rows, and a refiner is for the position) the
+statistic is the geometric mean over sequences of B's figure over A's: a sequence is the unit of
+evidence (session 29: the chroma AMLNet's pooled IML+PGO ATE on our look was 4 % better while one
+of the four sequences was 53 % worse), and a ratio weighs a 0.02 m sequence like a 1 m one. Its
+2.5-97.5 % interval comes from a paired two-level bootstrap, seeded: each look's sequences drawn
+with replacement, then, in each drawn sequence, moving blocks of `--block` consecutive frames
+(frames are not independent), the same draws for both labels.
 With few sequences the interval is wide: that is the point.
 
-Verdict per row: "better" (the interval below 1), "worse" (above 1), "level" (it straddles 1), per
-look and over all looks' sequences together. The rule the defaults are chosen by (BENCHMARKS.md,
-"How a default is chosen"): B replaces A only if, over all looks, some row is better and none is
-worse.
+Verdict per row and figure: "better" (the interval below 1), "worse" (above 1), "level" (it
+straddles 1), per look and over all looks' sequences together. The rule the defaults are chosen by
+(BENCHMARKS.md, "How a default is chosen"): B replaces A only if, over all looks together, some
+row's figure is better and none is worse.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ LOOKS = {  # the validation sets of experiments/validate_networks.sh, by look
     "mono": [f"val_mono/{s}_{c}" for c in ("purple", "orange", "grey") for s in ("circle", "sine")],
 }
 ROWS = ("IML", "IML+PGO", "IML+IR", "IML+IR+PGO")
+FIGURES = ("ATE", "position")  # RMS over the observed frames of the twist (eq. 12) and of the position error alone
 
 
 def sq_twist(est: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -55,18 +58,18 @@ def sq_twist(est: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 
 def per_frame(path: Path, data: Path) -> dict[str, dict]:
-    """Row -> {"q": squared twists (observed frames), "flips": (observed and detected)} of one run."""
+    """Row -> {"q": {"ATE": squared twists, "position": squared position errors (m^2)} over the
+    observed frames, "flips" and "detected" robots} of one run."""
     rows = json.loads(path.read_text())["frames"]
     scene = load_scene(list(group_scenes(read_bop(data)).values())[0])
     det, obs, gt = np.array([r["detected"] for r in rows]), np.asarray(scene.observed), np.asarray(scene.gt)
     ests = {"IML": np.array([r["iml_est"] for r in rows]), "IML+PGO": fused(rows, scene, "iml_est", det)}
     if "ir_est" in rows[0]:
         ests |= {"IML+IR": np.array([r["ir_est"] for r in rows]), "IML+IR+PGO": fused(rows, scene, "ir_est", det)}
-    out = {}
+    out, k = {}, det & obs
     for row, est in ests.items():
-        k = det & obs
-        out[row] = {"q": sq_twist(est[obs], gt[obs]), "flips": int(np.sum(flipped(est[k, 2], gt[k, 2]))),
-                    "detected": int(k.sum())}
+        q = {"ATE": sq_twist(est[obs], gt[obs]), "position": np.sum((est[obs, :2] - gt[obs, :2]) ** 2, axis=1)}
+        out[row] = {"q": q, "flips": int(np.sum(flipped(est[k, 2], gt[k, 2]))), "detected": int(k.sum())}
     return out
 
 
@@ -78,9 +81,10 @@ def block_indices(rng, n: int, block: int) -> np.ndarray:
 
 
 def compare(a: dict[str, list[np.ndarray]], b: dict[str, list[np.ndarray]], block: int, draws: int, seed: int) -> dict:
-    """Look -> sequences' per-frame squared twists of A and of B (paired frame by frame): each
-    label's pooled ATE, the geometric mean of the sequences' ATE ratios B / A, and its bootstrap
-    interval (sequences resampled within each look, then blocks within each sequence)."""
+    """Look -> sequences' per-frame squared errors of A and of B (paired frame by frame): each
+    label's pooled RMS ("ate_a", "ate_b"), the geometric mean of the sequences' RMS ratios B / A,
+    and its bootstrap interval (sequences resampled within each look, then blocks within each
+    sequence)."""
     rng = np.random.default_rng(seed)
     ate = lambda q: np.sqrt(q.mean())  # noqa: E731
     seqs = [(qa, qb) for look in a for qa, qb in zip(a[look], b[look])]
@@ -124,11 +128,11 @@ def main() -> None:
                 if not path.exists():
                     ap.error(f"{path}: not found (run LABEL={label} experiments/validate_networks.sh)")
                 runs[label, s] = per_frame(path, a.data / s)
-                if label == a.b and len(runs[a.a, s]["IML"]["q"]) != len(runs[a.b, s]["IML"]["q"]):
+                if label == a.b and len(runs[a.a, s]["IML"]["q"]["ATE"]) != len(runs[a.b, s]["IML"]["q"]["ATE"]):
                     ap.error(f"{s}: the two labels' runs cover different frames")
     out = {}
-    print("| looks | row | ATE A | ATE B | B / A (geometric mean over sequences, 95 %) | verdict | flips A / B | detected A / B |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| looks | row | figure (RMS) | A | B | B / A (geometric mean over sequences, 95 %) | verdict | flips A / B | detected A / B |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for looks in [[look] for look in a.looks] + ([a.looks] if len(a.looks) > 1 else []):
         name = "+".join(looks)
         out[name] = {}
@@ -136,15 +140,16 @@ def main() -> None:
             sets = [s for look in looks for s in LOOKS[look]]
             if not all(row in runs[label, s] for label in (a.a, a.b) for s in sets):
                 continue
-            q = {label: {look: [runs[label, s][row]["q"] for s in LOOKS[look]] for look in looks} for label in (a.a, a.b)}
-            r = compare(q[a.a], q[a.b], a.block, a.draws, a.seed)
-            for label, key in ((a.a, "a"), (a.b, "b")):
-                r[f"flips_{key}"] = sum(runs[label, s][row]["flips"] for s in sets)
-                r[f"detected_{key}"] = sum(runs[label, s][row]["detected"] for s in sets)
-            out[name][row] = r
-            print(f"| {name} | {row} | {r['ate_a']:.4f} | {r['ate_b']:.4f} | {r['ratio']:.3f} "
-                  f"({r['ratio_95'][0]:.3f}-{r['ratio_95'][1]:.3f}) | {r['verdict']} | "
-                  f"{r['flips_a']} / {r['flips_b']} | {r['detected_a']} / {r['detected_b']} |", flush=True)
+            for fig in FIGURES:
+                q = {label: {look: [runs[label, s][row]["q"][fig] for s in LOOKS[look]] for look in looks} for label in (a.a, a.b)}
+                r = compare(q[a.a], q[a.b], a.block, a.draws, a.seed)
+                for label, key in ((a.a, "a"), (a.b, "b")):
+                    r[f"flips_{key}"] = sum(runs[label, s][row]["flips"] for s in sets)
+                    r[f"detected_{key}"] = sum(runs[label, s][row]["detected"] for s in sets)
+                out[name][f"{row} {fig}"] = r
+                print(f"| {name} | {row} | {fig} | {r['ate_a']:.4f} | {r['ate_b']:.4f} | {r['ratio']:.3f} "
+                      f"({r['ratio_95'][0]:.3f}-{r['ratio_95'][1]:.3f}) | {r['verdict']} | "
+                      f"{r['flips_a']} / {r['flips_b']} | {r['detected_a']} / {r['detected_b']} |", flush=True)
     rows = list(out[name].values())  # all looks together (the last entry)
     verdict = "replace" if any(r["verdict"] == "better" for r in rows) and not any(r["verdict"] == "worse" for r in rows) else "keep"
     print(f"{a.b} against {a.a} over {name}: {verdict} the default")

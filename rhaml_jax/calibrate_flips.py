@@ -32,7 +32,7 @@ class Args:
     zoom: Path
     """the zoom-in stage checkpoint folder to calibrate (its meta is rewritten; the weights stay)"""
     amlnet: Path | None = None
-    """the AMLNet it runs behind (default: the shipped heat_chroma_cpu, `iml.DEFAULT_AMLNET`)"""
+    """the AMLNet it runs behind (default: the shipped heat_nocart_cpu, `iml.DEFAULT_AMLNET`)"""
     split: str | None = "val"
     """the split of --data to fit on (None: every split)"""
     zoom_mirror: bool = False

@@ -44,7 +44,7 @@ class Args:
     json: Path | None = None
     """write metrics and per-frame estimates here"""
     amlnet: Path | None = None
-    """AMLNet checkpoint folder (default: the shipped heat_chroma_cpu, `iml.DEFAULT_AMLNET`)"""
+    """AMLNet checkpoint folder (default: the shipped heat_nocart_cpu, `iml.DEFAULT_AMLNET`)"""
     zoom: Path | None = None
     """AMLNet's zoom-in stage checkpoint folder (default: the shipped zoom_fit_cpu with the shipped AMLNet)"""
     no_zoom: bool = False

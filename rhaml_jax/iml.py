@@ -12,7 +12,7 @@ vmaps, shards and differentiates; `localize_jit` is the shared compiled form.
 
 `IMLModel` is the static part (network definitions and switches; hashed by identity, so each
 loaded model compiles once per input shape), `IMLParams` the arrays. `load_iml` builds both from
-checkpoint folders (default: the shipped `heat_chroma_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
+checkpoint folders (default: the shipped `heat_nocart_cpu` + `zoom_fit_cpu`, `DEFAULT_AMLNET`,
 `DEFAULT_ZOOM`).
 """
 
@@ -124,16 +124,17 @@ def check_mirror_symmetric(model, model_path) -> None:
                          f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
 
 
-# The default networks (shipped in rhaml_jax/checkpoints), chosen on two validation sets, our look
-# and the OOD one. `zoom_fit_cpu` and `heat_fit_cpu` are made by `python -m rhaml_jax.fit --robot
+# The default networks (shipped in rhaml_jax/checkpoints), chosen on the validation looks (ours,
+# OOD, one paint) by experiments/compare_validation.py's rule (BENCHMARKS.md, "How a default is
+# chosen"). `zoom_fit_cpu` and `heat_fit_cpu` are made by `python -m rhaml_jax.fit --robot
 # pioneer3dx --budget-minutes 130 --from-scratch` (session 19, BENCHMARKS.md "An out-of-distribution
 # validation set"); `heat_nocart_cpu` is `heat_fit_cpu` fine-tuned on v3 images without robot-like
 # carts, which had taught it to doubt near robots seen end-on (session 22, BENCHMARKS.md "Carts
-# and the end-on misses"); `heat_chroma_cpu` is `heat_nocart_cpu` fine-tuned with the local chroma
-# contrast as its third input channel (config `chroma`; session 29, BENCHMARKS.md "Chroma contrast
-# instead of a third copy of the luminance"). Before: `heat_nocart_cpu`, `heat_fit_cpu`, and before
-# that `amlnet_cpu` + `zoom_cpu`.
-DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_chroma_cpu", "zoom_fit_cpu"
+# and the end-on misses"). `heat_chroma_cpu` (the local chroma contrast as its third input channel,
+# session 29) was the default for one session: under the sequence-level rule of session 30 it is
+# level with `heat_nocart_cpu` in every row, so it does not replace it. Before: `heat_fit_cpu`, and
+# before that `amlnet_cpu` + `zoom_cpu`.
+DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_nocart_cpu", "zoom_fit_cpu"
 
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,

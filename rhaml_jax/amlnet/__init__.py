@@ -12,8 +12,8 @@ Public API:
 - counts: `count_params`, `count_macs`, `describe(config_name, bench, batch)`;
 - training: `Batch`, `BatchSource` (data interface), `TrainConfig`, `train_amlnet`,
   `load_model(run_dir)`, `export_weights(run_dir, out_dir)` (weights only, for shipping),
-  `shipped_checkpoint(name)` (the weights in the package: "heat_chroma_cpu" + "zoom_fit_cpu", the
-  default IML pair, `iml.DEFAULT_AMLNET`; "heat_nocart_cpu" + "zoom_fit_cpu"; "heat_fit_cpu" + "zoom_fit_cpu"; "amlnet_cpu" + "zoom_cpu";
+  `shipped_checkpoint(name)` (the weights in the package: "heat_nocart_cpu" + "zoom_fit_cpu", the
+  default IML pair, `iml.DEFAULT_AMLNET`; "heat_chroma_cpu" + "zoom_fit_cpu"; "heat_fit_cpu" + "zoom_fit_cpu"; "amlnet_cpu" + "zoom_cpu";
   "heat_cpu" + "zoom_luma_cpu"; "heat_fit167_cpu" + "zoom_fit167_cpu", made with
   "refiner_fit167_cpu" by one from-scratch `fit` run, with "refiner_fit180_cpu" by its 180-minute
   budget; "refiner_cpu" + "refiner_fine_cpu", the default IR stage, `refine.load_stage`);
