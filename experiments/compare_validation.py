@@ -12,8 +12,8 @@ evidence (session 29: the chroma AMLNet's pooled IML+PGO ATE on our look was 4 %
 of the four sequences was 53 % worse), and a ratio weighs a 0.02 m sequence like a 1 m one. Its
 2.5-97.5 % interval comes from a paired two-level bootstrap, seeded: each look's sequences drawn
 with replacement, then, in each drawn sequence, moving blocks of `--block` consecutive frames
-(frames are not independent), the same draws for both labels.
-With few sequences the interval is wide: that is the point.
+(frames are not independent), the same draws for both labels. With few sequences the interval is
+wide: that is the point.
 
 Verdict per row and figure: "better" (the interval below 1), "worse" (above 1), "level" (it
 straddles 1), per look and over all looks' sequences together. The rule the defaults are chosen by
@@ -82,13 +82,13 @@ def block_indices(rng, n: int, block: int) -> np.ndarray:
 
 def compare(a: dict[str, list[np.ndarray]], b: dict[str, list[np.ndarray]], block: int, draws: int, seed: int) -> dict:
     """Look -> sequences' per-frame squared errors of A and of B (paired frame by frame): each
-    label's pooled RMS ("ate_a", "ate_b"), the geometric mean of the sequences' RMS ratios B / A,
+    label's pooled RMS ("rms_a", "rms_b"), the geometric mean of the sequences' RMS ratios B / A,
     and its bootstrap interval (sequences resampled within each look, then blocks within each
     sequence)."""
     rng = np.random.default_rng(seed)
-    ate = lambda q: np.sqrt(q.mean())  # noqa: E731
+    rms = lambda q: np.sqrt(q.mean())  # noqa: E731
     seqs = [(qa, qb) for look in a for qa, qb in zip(a[look], b[look])]
-    geo = float(np.exp(np.mean([np.log(ate(qb) / ate(qa)) for qa, qb in seqs])))
+    geo = float(np.exp(np.mean([np.log(rms(qb) / rms(qa)) for qa, qb in seqs])))
     stats = np.empty(draws)
     for d in range(draws):
         logs = []
@@ -96,14 +96,14 @@ def compare(a: dict[str, list[np.ndarray]], b: dict[str, list[np.ndarray]], bloc
             for j in rng.integers(0, len(a[look]), size=len(a[look])):
                 qa, qb = a[look][j], b[look][j]
                 i = block_indices(rng, len(qa), block)
-                logs.append(np.log(ate(qb[i]) / ate(qa[i])))
+                logs.append(np.log(rms(qb[i]) / rms(qa[i])))
         stats[d] = np.exp(np.mean(logs))
     lo, hi = np.percentile(stats, [2.5, 97.5])
     verdict = "better" if hi < 1 else "worse" if lo > 1 else "level"
     pooled = lambda qs: float(np.sqrt(np.concatenate([q for look in qs.values() for q in look]).mean()))  # noqa: E731
-    return {"ate_a": pooled(a), "ate_b": pooled(b), "sequences": len(seqs), "ratio": geo,
+    return {"rms_a": pooled(a), "rms_b": pooled(b), "sequences": len(seqs), "ratio": geo,
             "ratio_95": [float(lo), float(hi)], "verdict": verdict,
-            "sequence_ratios": [float(ate(qb) / ate(qa)) for qa, qb in seqs]}
+            "sequence_ratios": [float(rms(qb) / rms(qa)) for qa, qb in seqs]}
 
 
 def main() -> None:
@@ -147,7 +147,7 @@ def main() -> None:
                     r[f"flips_{key}"] = sum(runs[label, s][row]["flips"] for s in sets)
                     r[f"detected_{key}"] = sum(runs[label, s][row]["detected"] for s in sets)
                 out[name][f"{row} {fig}"] = r
-                print(f"| {name} | {row} | {fig} | {r['ate_a']:.4f} | {r['ate_b']:.4f} | {r['ratio']:.3f} "
+                print(f"| {name} | {row} | {fig} | {r['rms_a']:.4f} | {r['rms_b']:.4f} | {r['ratio']:.3f} "
                       f"({r['ratio_95'][0]:.3f}-{r['ratio_95'][1]:.3f}) | {r['verdict']} | "
                       f"{r['flips_a']} / {r['flips_b']} | {r['detected_a']} / {r['detected_b']} |", flush=True)
     rows = list(out[name].values())  # all looks together (the last entry)
