@@ -41,7 +41,8 @@ __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "load_stage", "AlignConfig
 
 
 # The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
-# pairs so that the first V of them (V even) average to zero offset.
+# pairs so that the first V of them (V even) average to zero offset; an odd count of views adds
+# the pose itself (`view_starts`).
 _VIEW_SIGNS = np.array([(1, 1, 1), (-1, -1, -1), (1, -1, -1), (-1, 1, 1),
                         (-1, 1, -1), (1, -1, 1), (-1, -1, 1), (1, 1, -1)], np.float32)
 
@@ -227,12 +228,16 @@ def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int):
 def view_starts(xyp, views: int, spread) -> jax.Array:
     """`views` starting poses (views, 3) around the planar pose xyp (3,): the range scaled by
     exp(+-spread[0]), the bearing and the heading turned by +-spread[1] and +-spread[2] (rad), the
-    signs the corners of a cube in antipodal pairs (so an even number of views is centred on xyp)."""
+    signs the corners of a cube in antipodal pairs; an odd count starts with xyp itself (1 view: xyp
+    alone). Every count is centred on xyp."""
     if not 1 <= views <= len(_VIEW_SIGNS):
         from rhaml_jax.errors import RhamlError
 
         raise RhamlError(f"view_starts: views must be in 1..{len(_VIEW_SIGNS)}, got {views}")
-    d = jnp.asarray(_VIEW_SIGNS[:views]) * jnp.asarray(spread, jnp.float32)  # (V, 3)
+    signs = _VIEW_SIGNS[: views - views % 2]
+    if views % 2:
+        signs = np.concatenate([np.zeros((1, 3), np.float32), signs])
+    d = jnp.asarray(signs) * jnp.asarray(spread, jnp.float32)  # (V, 3)
     r = jnp.hypot(xyp[0], xyp[1])  # > 0: check_init declines starts at the camera
     b = jnp.arctan2(xyp[1], xyp[0])
     rv, bv = r * jnp.exp(d[:, 0]), b + d[:, 1]
