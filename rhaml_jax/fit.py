@@ -4,8 +4,9 @@
 
 Loads and checks the robot (URDF or mesh), generates its appearance-randomised training data,
 trains AMLNet (its last phase without robot-like carts among the distractors), its zoom stage
-(its crop sized to the robot) and the refiner, exports them to
-DIR/networks/ (for `evaluate --amlnet/--zoom/--refiner` and the pipeline), evaluates them on
+(its crop sized to the robot) and the refiner cascade (the refiner and the fine refiner),
+exports them to DIR/networks/ (for `evaluate --amlnet/--zoom/--refiner/--fine-refiner` and the
+pipeline), evaluates them on
 generated circle + sine scenarios and on the held-out appearance set, and writes DIR/report.md.
 Distances are scaled to the robot's size and AMLNet and the zoom stage fine-tune the shipped
 Pioneer networks (heat_cpu, zoom_luma_cpu) unless --from-scratch (`rhaml_jax.fitting._plan`):

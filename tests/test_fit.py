@@ -43,7 +43,7 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     assert list(state.done) == list(STAGES)
     assert any("amlnet: done" in line and "skipped" in line for line in logs)  # not trained again
     assert sorted((out / "runs" / "amlnet" / "checkpoints").iterdir()) == amlnet_ckpt
-    for net in ("amlnet", "zoom", "refiner"):
+    for net in ("amlnet", "zoom", "refiner", "fine"):
         assert (out / "networks" / net / "checkpoints").is_dir()
     # from scratch (tiny plans are): the zoom stage's curriculum, v1 images first, then v3 and v1 together
     assert (out / "runs" / "zoom_v1" / "checkpoints").is_dir()
@@ -58,6 +58,9 @@ def test_end_to_end_after_a_kill_and_resume(killed_and_resumed):
     assert (out / "runs" / "refiner_v1" / "checkpoints").is_dir() and (out / "data" / "refine_v1" / "train").is_dir()
     assert checkpoint_meta(out / "runs" / "refiner").get("initialised_from") == str(out / "runs" / "refiner_v1")
     assert {p.resolve().parents[1].name for p in (out / "data" / "refine_mix" / "train").iterdir()} == {"refine", "refine_v1"}
+    # the cascade's fine refiner, from the refiner's weights; the evaluation runs it after the refiner
+    assert checkpoint_meta(out / "runs" / "refiner_fine").get("initialised_from") == str(out / "runs" / "refiner")
+    assert checkpoint_meta(out / "networks" / "fine").get("exported_from") == str(out / "runs" / "refiner_fine")
     assert (out / "runs" / "refiner" / "metrics.png").stat().st_size > 1000  # the report's curves
     report = (out / "report.md").read_text()
     assert "turtlebot3_burger" in report and "| heldout/circle | iml,ir |" in report and "| circle | iml,ir,pgo |" in report
@@ -133,7 +136,7 @@ def test_bad_input_one_line_exit_2(tmp_path):
 # the budget rule's rates (module docstring of _plan) at 604 faces: data 0.029 s per image and 0.3 of it
 # without carts for AMLNet's last phase, 0.122 s per v3 image of the refiner's (a tenth) and 0.05 s per v1
 # one (a twentieth); AMLNet 0.9 s per step and 3/8 of a no-cart step after each; the evaluation 0.13 s
-# per frame and set
+# per frame and set; the refiner 0.13 s per step, and a third as many steps of the fine refiner after it
 IMG = 0.029 * 1.3 + 0.122 / 10 + 0.05 / 20
 STEP = 0.9 * 11 / 8
 # off the top: the evaluation's 16 compilations (13.6 s each) and the export with its flip calibration (32 s)
@@ -143,7 +146,7 @@ F = 16 * 13.6 + 32.0
 def _planned_s(r) -> float:
     """The seconds a Pioneer plan's counts take at those rates (compilations left out)."""
     return ((r.images + r.negatives) * IMG + r.v1_images * 0.015 + r.amlnet_steps * STEP + r.zoom_steps * 0.1
-            + r.refiner_steps * 0.13 + 6 * r.frames * 0.13)
+            + (r.refiner_steps + r.refiner_fine_steps) * 0.13 + 6 * r.frames * 0.13)
 
 
 def test_budget_rule():
@@ -165,15 +168,17 @@ def test_budget_rule():
     assert t.images + t.negatives == int(0.15 * (2400 - F) / (0.136 * 1.3 + 0.26 / 10 + 0.13 / 20))
     assert t.frames == int(0.18 * (2400 - F) / 1.17 / 6)
     assert abs(t.amlnet_steps - q.amlnet_steps) <= 5 and t.scale == 0.39  # only the roundings' leftovers differ
-    # the refiner renders too: 0.13 s per step at 604 faces, 0.5 s at 91,104
-    assert (q.refiner_steps, t.refiner_steps) == (int(0.1 * (2400 - F) / 0.13), int(0.1 * (2400 - F) / 0.5))
-    # what a capped stage leaves goes to the trainings: at 90 min the refiner (3000 steps of its
+    # the refiner renders too: 0.13 s per step at 604 faces, 0.5 s at 91,104; its share buys the fine
+    # refiner's third as many steps too
+    assert abs(q.refiner_steps - 0.1 * (2400 - F) / (0.13 * 4 / 3)) <= 1 and abs(t.refiner_steps - 0.1 * (2400 - F) / (0.5 * 4 / 3)) <= 1
+    assert (q.refiner_fine_steps, t.refiner_fine_steps) == (q.refiner_steps // 3, t.refiner_steps // 3)
+    # what a capped stage leaves goes to the trainings: at 95 min the refiner (3000 steps of its
     # share) and the evaluation (500 frames per set) are capped, and AMLNet and the zoom stage get
     # their seconds by share
-    S = 90 * 60 - F
-    r = make_plan(90)
-    assert r.images + r.negatives == int(0.15 * S / IMG) and r.refiner_steps == 3000 and r.frames == 500
-    spare = S - (r.images + r.negatives) * IMG - 0.45 * S - 0.12 * S - r.refiner_steps * 0.13 - 6 * r.frames * 0.13
+    S = 95 * 60 - F
+    r = make_plan(95)
+    assert r.images + r.negatives == int(0.15 * S / IMG) and (r.refiner_steps, r.refiner_fine_steps, r.frames) == (3000, 1000, 500)
+    spare = S - (r.images + r.negatives) * IMG - 0.45 * S - 0.12 * S - 4000 * 0.13 - 6 * r.frames * 0.13
     assert spare > 100
     assert abs(r.amlnet_steps - (0.45 * S + spare * 45 / 57) / STEP) <= 2
     assert abs(r.zoom_steps - (0.12 * S + spare * 12 / 57) / 0.1) <= 10  # a second of roundings' leftovers
@@ -182,12 +187,12 @@ def test_budget_rule():
     S = 123 * 60 - F
     r = make_plan(123)
     assert (r.images + r.negatives, r.zoom_steps, r.refiner_steps, r.frames) == (20000, 10_000, 3000, 500)
-    assert abs(r.amlnet_steps - (S - 20000 * IMG - 10_000 * 0.1 - 3000 * 0.13 - 6 * 500 * 0.13) / STEP) <= 2
+    assert abs(r.amlnet_steps - (S - 20000 * IMG - 10_000 * 0.1 - 4000 * 0.13 - 6 * 500 * 0.13) / STEP) <= 2
     assert 0.99 * S <= _planned_s(r) <= S
     big = make_plan(100_000)
     assert big.amlnet_steps == 4000 and big.images + big.negatives == 20000
     # once AMLNet and the zoom stage are capped, what is left goes to the refiner, up to 6000 steps
-    assert big.refiner_steps == 6000 and make_plan(110).refiner_steps == 3000
+    assert (big.refiner_steps, big.refiner_fine_steps) == (6000, 2000) and make_plan(110).refiner_steps == 3000
     mid = make_plan(137)  # AMLNet and zoom capped, the refiner between its caps
     assert (mid.amlnet_steps, mid.zoom_steps) == (4000, 10_000) and 3000 < mid.refiner_steps < 6000
     with pytest.raises(RhamlError, match="frames 0 < 20\\); give at least 10 minutes"):
@@ -196,14 +201,14 @@ def test_budget_rule():
         make_plan(9)
     make_plan(10)  # the smallest budget it names is enough
     # from random weights AMLNet needs 2,000 steps (30 minutes, 901 steps, detected nothing)
-    with pytest.raises(RhamlError, match=r"from scratch \(amlnet_steps 1354 < 2000\); give at least 81 minutes"):
+    with pytest.raises(RhamlError, match=r"from scratch \(amlnet_steps 1354 < 2000\); give at least 83 minutes"):
         make_plan(60, warm_start=False)
-    scratch = make_plan(81, warm_start=False)
+    scratch = make_plan(83, warm_start=False)
     assert scratch.amlnet_steps >= 2000 and not scratch.warm_start
     # its curriculum: half as many v1 images as v3 ones, the zoom stage's first 12/17 on them
     assert scratch.v1_images == (scratch.images + scratch.negatives) // 2 and scratch.zoom_v1_steps == round(scratch.zoom_steps * 12 / 17)
     # from scratch the zoom stage may run longer (17,000 steps: 12,000 on v1 images, 5,000 on the mix)
-    long = make_plan(150, warm_start=False)
+    long = make_plan(155, warm_start=False)
     assert (long.zoom_steps, long.zoom_v1_steps) == (17_000, 12_000) and make_plan(184).zoom_steps == 10_000
     assert 3000 < long.refiner_steps < 6000  # the refiner's extra steps come after the zoom stage's
     assert (make_plan(75).v1_images, make_plan(75).zoom_v1_steps) == (0, 0)  # fine-tuning needs none
@@ -360,6 +365,7 @@ def test_pacing_stays_between_the_minima_and_the_plan_as_made():
     back, f = paced(short, list(STAGES[5:]), 2 * total, 1.0, 604, first=plan)
     assert f == 1.0 and stage_counts(back) == stage_counts(short) | {"refiner_v1": plan.refiner_v1_steps,
                                                                      "refiner": plan.refiner_steps - plan.refiner_v1_steps,
+                                                                     "refiner_fine": plan.refiner_fine_steps,
                                                                      "scenarios": plan.frames}
     assert PACED_MINIMA["amlnet"] == 100 and {k: v for k, v in stage_counts(short).items() if k != "amlnet"} == {
         k: v for k, v in PACED_MINIMA.items() if k != "amlnet"}

@@ -12,7 +12,7 @@ shares, and each share is turned into a count with a rate measured here (BENCHMA
 | data: v3 training images at 320 x 256, 0.3 as many without carts for AMLNet's last phase, a tenth as many at 640 x 480 for the refiner, and a twentieth as many plain-look ones at 640 x 480 for its first steps | 15 % | per image at 604 mesh faces: 0.029 s (320 x 256), 0.122 s (the refiner's, 640 x 480), 0.05 s (its plain-look ones); at 91,104 faces 0.136, 0.26 and 0.13 s; linear between (2 processes) | images (7/8 with the robot) |
 | amlnet: `cpu_heat`, batch 32, then 3/8 as many steps on the no-cart images | 45 % | 0.9 s per step (validation and checkpoints included: 0.87 and 0.91 in session 27's fit) | steps (of the first phase) |
 | zoom: `zoom_cpu_luma`, batch 32 | 12 % | 0.1 s per step | steps |
-| refiner: `refiner_cpu`, batch 16 | 10 % | 0.13 s per step at 604 faces, 0.5 s at 91,104 (it renders) | steps |
+| refiner: `refiner_cpu`, batch 16, then a third as many steps of the fine refiner `refiner_fine_cpu` | 10 % | 0.13 s per step of either at 604 faces, 0.5 s at 91,104 (it renders) | steps (of `refiner_cpu`) |
 | evaluation: scenarios, held-out set, evaluate | 18 % | 0.13 s per frame at 604 faces, 1.17 s at 91,104 (render + IML + IR) | frames per scenario |
 
 Before the split, the evaluation's fixed cost is taken off the budget: its 16 `evaluate` runs
@@ -130,6 +130,7 @@ EXPORT_S = 32.0
 V1_FRACTION = 0.5  # from scratch: v1 images per v3 training image (with or without the robot)
 ZOOM_V1_FRACTION = 12 / 17  # from scratch: the zoom stage's steps spent on v1 images before the v3 ones
 REFINER_V1_FRACTION = 2 / 3  # the refiner's steps spent on v1 images before the v3 + v1 mix
+FINE_STEP_FRACTION = 1 / 3  # the fine refiner's steps per refiner step, after it, from its weights, on the mix
 NOCART_IMAGE_FRACTION = 0.3  # AMLNet's last phase: no-cart images per v3 training image (6,000 of 20,000, as measured)
 NOCART_STEP_FRACTION = 3 / 8  # ... and its steps per first-phase step (1,500 after 4,000, as measured)
 MINIMA = {"images": 1000, "amlnet_steps": 100, "zoom_steps": 100, "refiner_steps": 50, "frames": 20}
@@ -187,6 +188,10 @@ class Plan:
     """... and without the robot"""
     amlnet_nocart_steps: int
     """AMLNet's last phase: steps on those images, after `amlnet_steps`, from that phase's weights"""
+    fine_config: str
+    """the fine refiner (a DeepIM cascade's second network: the pipeline runs it after the refiner)"""
+    refiner_fine_steps: int
+    """its steps, after `refiner_steps`, from the refiner's weights, on the same v3 + v1 crops"""
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "plan") -> "Plan":
@@ -212,7 +217,7 @@ def make_plan(budget_minutes: float, size: Literal["cpu", "tiny"] = "cpu", faces
         raise RhamlError(f"--budget-minutes {budget_minutes}: must be positive")
     if size == "tiny":  # test-size networks have no shipped weights to start from
         return Plan("tiny", "tiny", "tiny_zoom", "refiner_micro", 160, 24, 6, 12, 4, 4, 4, 8, 8, 8, 8, 160,
-                    ("circle", "heldout/circle"), budget_minutes, scale, False, 12, 2, 6, 2, 6, 2, 2)
+                    ("circle", "heldout/circle"), budget_minutes, scale, False, 12, 2, 6, 2, 6, 2, 2, "refiner_micro_fine", 2)
     if size != "cpu":
         raise RhamlError(f"--size {size!r}: expected cpu or tiny")
     counts = _counts(budget_minutes * 60.0, faces, not warm_start)
@@ -237,12 +242,13 @@ def _from_counts(counts: dict[str, int], budget_minutes: float, scale: float, wa
                 EVAL_SETS, budget_minutes, scale, warm_start, 0 if warm_start else int(images * V1_FRACTION),
                 0 if warm_start else round(counts["zoom_steps"] * ZOOM_V1_FRACTION), max(20, images // 20),
                 round(counts["refiner_steps"] * REFINER_V1_FRACTION), nocart * 7 // 8, nocart - nocart * 7 // 8,
-                round(counts["amlnet_steps"] * NOCART_STEP_FRACTION))
+                round(counts["amlnet_steps"] * NOCART_STEP_FRACTION), "refiner_fine_cpu",
+                math.floor(counts["refiner_steps"] * FINE_STEP_FRACTION + 1e-9))  # rounded down: a plan never overspends
 
 
 # count -> the stages whose seconds it buys (`stage_seconds`)
 _COUNT_STAGES = {"images": ("data",), "amlnet_steps": ("amlnet", "amlnet_nocart"), "zoom_steps": ("zoom_v1", "zoom"),
-                 "refiner_steps": ("refiner_v1", "refiner"), "frames": ("scenarios",)}
+                 "refiner_steps": ("refiner_v1", "refiner", "refiner_fine"), "frames": ("scenarios",)}
 
 
 def _unit_seconds(faces: int, curriculum: bool) -> dict[str, float]:
@@ -298,7 +304,7 @@ def eval_compile_s(eval_sets: tuple[str, ...] = EVAL_SETS) -> float:
 
 
 # Pacing (module docstring): the counts a stage runs, and their smallest paced values
-PACED_MINIMA = {"amlnet": MINIMA["amlnet_steps"], "amlnet_nocart": 50, "zoom_v1": 50, "zoom": 50, "refiner_v1": 25, "refiner": 25,
+PACED_MINIMA = {"amlnet": MINIMA["amlnet_steps"], "amlnet_nocart": 50, "zoom_v1": 50, "zoom": 50, "refiner_v1": 25, "refiner": 25, "refiner_fine": 25,
                 "scenarios": MINIMA["frames"]}
 MAX_SLOWNESS = 4.0  # a run this far behind its rates is a slower machine or a busy one; past it pacing would starve the rest
 
@@ -308,7 +314,7 @@ def stage_counts(plan: Plan) -> dict[str, int]:
     (fixed when the `scenarios` stage renders them)."""
     return {"amlnet": plan.amlnet_steps, "amlnet_nocart": plan.amlnet_nocart_steps, "zoom_v1": plan.zoom_v1_steps,
             "zoom": plan.zoom_steps - plan.zoom_v1_steps, "refiner_v1": plan.refiner_v1_steps,
-            "refiner": plan.refiner_steps - plan.refiner_v1_steps, "scenarios": plan.frames}
+            "refiner": plan.refiner_steps - plan.refiner_v1_steps, "refiner_fine": plan.refiner_fine_steps, "scenarios": plan.frames}
 
 
 def with_counts(plan: Plan, counts: dict[str, int]) -> Plan:
@@ -316,7 +322,7 @@ def with_counts(plan: Plan, counts: dict[str, int]) -> Plan:
     c = stage_counts(plan) | counts
     return dataclasses.replace(plan, amlnet_steps=c["amlnet"], amlnet_nocart_steps=c["amlnet_nocart"], zoom_v1_steps=c["zoom_v1"],
                                zoom_steps=c["zoom_v1"] + c["zoom"], refiner_v1_steps=c["refiner_v1"],
-                               refiner_steps=c["refiner_v1"] + c["refiner"], frames=c["scenarios"])
+                               refiner_steps=c["refiner_v1"] + c["refiner"], refiner_fine_steps=c["refiner_fine"], frames=c["scenarios"])
 
 
 def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
@@ -331,7 +337,7 @@ def stage_seconds(plan: Plan, faces: int) -> dict[str, float]:
     return {"data": images * image_s + plan.refine_images * refine_s + plan.v1_images * v1_s + plan.refine_v1_images * v1_refine_s,
             "amlnet": n["amlnet"] * RATES["amlnet_step_s"], "amlnet_nocart": n["amlnet_nocart"] * RATES["amlnet_step_s"],
             "zoom_v1": n["zoom_v1"] * RATES["zoom_step_s"], "zoom": n["zoom"] * RATES["zoom_step_s"],
-            "refiner_v1": n["refiner_v1"] * refiner_s, "refiner": n["refiner"] * refiner_s,
+            "refiner_v1": n["refiner_v1"] * refiner_s, "refiner": n["refiner"] * refiner_s, "refiner_fine": n["refiner_fine"] * refiner_s,
             "export": EXPORT_S, "scenarios": n["scenarios"] * frame_s * 6,
             "evaluate": eval_compile_s(plan.eval_sets), "report": 0.0}
 

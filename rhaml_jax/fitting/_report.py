@@ -119,14 +119,15 @@ def write_report(out: Path, model, plan: Plan) -> Path:
     depths = SynthConfig().scaled(plan.scale).depth_m
     lines = [f"# fit report: {fp.name}", "",
              f"Robot: {fp.describe()}; {len(model.faces)} faces. Networks: `{out / 'networks'}` "
-             f"(`evaluate --amlnet {out / 'networks/amlnet'} --zoom {out / 'networks/zoom'} --refiner {out / 'networks/refiner'}`).",
+             f"(`evaluate --amlnet {out / 'networks/amlnet'} --zoom {out / 'networks/zoom'} --refiner {out / 'networks/refiner'} --fine-refiner {out / 'networks/fine'}`).",
              "", "## Plan and wall time", "",
              f"Budget {plan.budget_minutes:g} min, size {plan.size}: {plan.images} training images with the robot and "
              f"{plan.negatives} without at {plan.width} x {plan.height}; AMLNet `{plan.amlnet_config}` {plan.amlnet_steps} "
              f"steps of {plan.amlnet_batch}, then {plan.amlnet_nocart_steps} on {plan.nocart_images} + {plan.nocart_negatives} "
              f"images without robot-like carts, zoom `{plan.zoom_config}` {plan.zoom_steps} steps, refiner `{plan.refiner_config}` "
              f"{plan.refiner_steps} steps, the first {plan.refiner_v1_steps} on {plan.refine_v1_images} plain-look (v1) images "
-             f"at {plan.eval_width} x {plan.eval_height}, the rest on those and {plan.refine_images} v3 ones together; "
+             f"at {plan.eval_width} x {plan.eval_height}, the rest on those and {plan.refine_images} v3 ones together, then the fine "
+             f"refiner `{plan.fine_config}` {plan.refiner_fine_steps} steps on those from the refiner's weights; "
              f"{plan.frames} frames per evaluation scenario at {plan.eval_width} x {plan.eval_height}. "
              f"Distances x {plan.scale:g} of the Pioneer's (training depths {depths[0]:.2f}-{depths[1]:.2f} m, "
              f"circle radius {2.0 * plan.scale:.2f} m about {4.5 * plan.scale:.2f} m ahead); AMLNet and zoom "
@@ -144,7 +145,7 @@ def write_report(out: Path, model, plan: Plan) -> Path:
         lines += ["", "Killed and resumed; the seconds above include each killed attempt's, up to its last file: "
                   + ", ".join(f"{k} {v:.0f} s" for k, v in state["lost"].items()) + "."]
     lines += ["", f"Total so far: {sum(state['done'].values()) / 60:.1f} min.", "", "## Training curves", ""]
-    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner") if (out / "runs" / k / "metrics.png").exists()]
+    lines += [f"![{k}](runs/{k}/metrics.png)" for k in ("amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "refiner_fine") if (out / "runs" / k / "metrics.png").exists()]
     lines += ["", "## Evaluation", "",
               "Over the frames with the robot in view that were detected: mean / std / median; flips: |dpsi| > 90 deg; "
               "detection over every frame. `heldout/*`: the held-out appearance set (settings outside every training "

@@ -9,8 +9,8 @@ DIR/
   data/train_nocart   v3 without robot-like carts: AMLNet's last phase (BOP)
   data/train_v1       from scratch: the curriculum's plain-look (v1) images (BOP); data/train_mix: both (links)
   data/refine_v1      the refiner's plain-look (v1) images (BOP, 640 x 480); data/refine_mix: both (links)
-  runs/{amlnet,amlnet_nocart,zoom_v1,zoom,refiner_v1,refiner}   training runs (checkpoints, metrics.jsonl, metrics.png)
-  networks/{amlnet,zoom,refiner}                       exported weights for evaluate --amlnet/--zoom/--refiner
+  runs/{amlnet,amlnet_nocart,zoom_v1,zoom,refiner_v1,refiner,refiner_fine}   training runs (checkpoints, metrics.jsonl, metrics.png)
+  networks/{amlnet,zoom,refiner,fine}                  exported weights for evaluate --amlnet/--zoom/--refiner/--fine-refiner
   eval/{circle,sine,heldout/...}, eval/results/*.json  evaluation data and evaluate's JSON
   report.md, report_*.png                              the report
 """
@@ -31,7 +31,7 @@ from rhaml_jax.fitting._plan import Plan, eval_modules, paced, slowness, stage_c
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"  # rhaml_jax/checkpoints: the shipped networks
 WARM_START = {"cpu_heat": "heat_cpu", "zoom_cpu_luma": "zoom_luma_cpu"}  # config -> shipped network to fine-tune
 REPAINT_PROB = 0.5
-STAGES = ("data", "amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "export", "scenarios", "evaluate", "report")
+STAGES = ("data", "amlnet", "amlnet_nocart", "zoom_v1", "zoom", "refiner_v1", "refiner", "refiner_fine", "export", "scenarios", "evaluate", "report")
 MIN_LENGTH_M, MAX_LENGTH_M = 0.03, 5.0
 _now = time.time  # the wall clock stages are timed with, comparable with file times (tests replace it)
 
@@ -223,6 +223,12 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         train("refiner", plan.refiner_config, "refine_mix", plan.refiner_steps - plan.refiner_v1_steps, plan.refiner_batch, 4, 4,
               *init_from(runs / "refiner_v1"))
 
+    def refiner_fine_stage():
+        """The cascade's fine refiner (the pipeline runs it after the refiner), from the refiner's
+        weights on the same crops, its starts drawn as a refiner leaves them (_plan's docstring)."""
+        train("refiner", plan.fine_config, "refine_mix", plan.refiner_fine_steps, plan.refiner_batch, 4, 4,
+              "--init", str(runs / "refiner"), "--lr", "3e-4", "--warmup", "100", stage_dir="refiner_fine")
+
     def export_stage():
         from rhaml_jax.amlnet import export_weights
         from rhaml_jax.refine import export_refiner
@@ -230,7 +236,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         import shutil
 
         for name, run, export in (("amlnet", "amlnet_nocart", export_weights), ("zoom", "zoom", export_weights),
-                                  ("refiner", "refiner", export_refiner)):
+                                  ("refiner", "refiner", export_refiner), ("fine", "refiner_fine", export_refiner)):
             shutil.rmtree(nets / name, ignore_errors=True)  # derived from runs/: a killed export is redone whole
             export(runs / run, nets / name)
         # IML's flip probability calibrated on the training set's own validation split
@@ -256,7 +262,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
 
         (ev / "results").mkdir(parents=True, exist_ok=True)
         nets_args = ["--amlnet", str(nets / "amlnet"), "--zoom", str(nets / "zoom"), "--refiner", str(nets / "refiner"),
-                     *_mirror_flag(model)]
+                     "--fine-refiner", str(nets / "fine"), *_mirror_flag(model)]
         for name in plan.eval_sets:
             folder = eval_folder(ev, name)
             for modules in eval_modules(name):
@@ -270,7 +276,7 @@ def stage_functions(out: Path, robot_spec: str, plan: Plan, workers: int, seed: 
         write_report(out, model, plan)
 
     return {"data": data_stage, "amlnet": amlnet_stage, "amlnet_nocart": amlnet_nocart_stage, "zoom_v1": zoom_v1_stage, "zoom": zoom_stage,
-            "refiner_v1": refiner_v1_stage, "refiner": refiner_stage,
+            "refiner_v1": refiner_v1_stage, "refiner": refiner_stage, "refiner_fine": refiner_fine_stage,
             "export": export_stage, "scenarios": scenarios_stage, "evaluate": evaluate_stage, "report": report_stage}
 
 
