@@ -171,6 +171,8 @@ def run(args: Args) -> dict:
         m["iml_flip"] = calibration_metrics([r["iml_flip_prob"] for r in seen],
                                             flipped([r["iml_est"][2] for r in seen], [r["gt"][2] for r in seen]))
         m["iml_flip"]["calibrated"] = model.iml.flip_calibration is not None
+    if "ir" in modules:  # detected frames where IR's estimate stands (else it declined or did not converge)
+        m["ir_applied"] = int(sum(r["ir_applied"] for r in rows if r["detected"]))
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
@@ -180,8 +182,9 @@ def run(args: Args) -> dict:
 
 def frame_rows(run, fused: bool) -> list[dict]:
     """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
-    and flip probability, with ir the refined estimate, its roll and pitch (rad) and flip probability,
-    and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    and flip probability, with ir the refined estimate, its roll and pitch (rad) and flip probability
+    and whether it was applied (False where the refiner declined or did not converge, or nothing was
+    detected: IML's estimate stands), and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
     res, data = run.result, run.data
     rows = []
     for i, f in enumerate(data.frames):
@@ -193,7 +196,8 @@ def frame_rows(run, fused: bool) -> list[dict]:
                "iml_est": [float(v) for v in res.iml.xypsi[i]], "iml_flip_prob": float(res.iml.flip_prob[i])}
         if res.ir is not None:
             row |= {"ir_est": [float(v) for v in res.ir.xypsi[i]], "ir_roll_pitch": [float(v) for v in res.ir.roll_pitch[i]],
-                    "ir_flip_prob": float(res.ir.flip_prob[i])}
+                    "ir_flip_prob": float(res.ir.flip_prob[i]),
+                    "ir_applied": bool(np.any(np.asarray(res.ir.xypsi[i]) != np.asarray(res.iml.xypsi[i])))}
         if res.fusion is not None:
             row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
         rows.append(row)

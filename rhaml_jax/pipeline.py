@@ -159,7 +159,7 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
     """IR on every frame (`refine.refine`: the learned iterations, re-rendering between them);
     frames not detected, or where the refiner declines (the estimate behind the camera or
-    outside the image), keep IML's estimate."""
+    outside the image) or does not converge (`RefineConfig.max_final_step`), keep IML's estimate."""
     if model.refiner is None or params.refiner is None:
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
     from rhaml_jax import refine
@@ -172,7 +172,7 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
                              segmenter=p.segmenter, scorer=p.scorer, fine=p.fine)
 
     out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
-    keep = detected & ~out.declined
+    keep = detected & ~out.declined & out.converged
     pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
     # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the
     # alignment's margin over the other-facing hypothesis (0 when it did not run) lowers IML's doubt

@@ -205,3 +205,22 @@ def test_ir_with_a_segmenter_runs_the_alignment_to_its_masks(stage):
     with_seg = pipeline.run_jit(aligned, pipeline.PipelineParams(p, refine.StageParams(refiner, mesh, seg)), seq)
     assert with_seg.ir is not None and bool(jnp.all(jnp.isfinite(with_seg.ir.xypsi)))
     assert not np.allclose(with_seg.ir.xypsi, without.ir.xypsi)
+
+
+def test_frames_where_ir_does_not_converge_keep_imls_estimate(stage):
+    """`RefineConfig.max_final_step`: where the refiner's last coarse iteration still moves the
+    range by more than it, the pipeline keeps IML's estimate (as where the refiner declines)."""
+    from rhaml_jax import refine, render
+    from rhaml_jax.robots import load_robot
+
+    m, p = stage
+    rc = refine.get_refiner_config("refiner_micro")
+    refiner = refine.Refiner(jax.tree.map(lambda a: a + 0.05, refine.net.init_params(rc, jax.random.key(3))), rc)
+    params = pipeline.PipelineParams(p, refine.StageParams(refiner, render.as_mesh(load_robot("pioneer3dx"))))
+    seq = _sequence(n=2)
+    cfg = pipeline.PipelineConfig(modules=("iml", "ir"), chunk=2)
+    runs = {tol: pipeline.run_jit(pipeline.PipelineModel(m, cfg, refine.RefineConfig(n_iter=2, max_final_step=tol)), params, seq)
+            for tol in (None, 1e-9)}
+    free, strict = runs[None], runs[1e-9]
+    assert not np.allclose(free.ir.xypsi, free.iml.xypsi)  # refined where nothing is checked
+    np.testing.assert_array_equal(np.asarray(strict.ir.xypsi), np.asarray(strict.iml.xypsi))

@@ -333,3 +333,31 @@ def test_view_starts_are_centred_on_the_pose(x, y, psi, views):
         if views % 2:
             assert abs(d[0]) < 2e-5
         assert abs(d.mean()) < 2e-5 + 1e-3 * sp
+
+
+def test_an_unconverged_cascade_keeps_the_initial_pose(run, bop_set):
+    """`RefineConfig.max_final_step`: converged iff the last coarse iteration moved the range by at
+    most that fraction; if not, the initial pose comes back (as for a declined start), with the
+    iterates kept to inspect; None checks nothing."""
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    mesh = render.as_mesh(model)
+    ref = load_refiner(out, model)
+    ref = dataclasses.replace(ref, params=jax.tree.map(lambda a: a + 0.05, ref.params))  # it moves the pose
+    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    h = float(np.linalg.inv(f.T_w2c)[2, 3])
+    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    free = refine(ref, mesh, img, f.K, init, RefineConfig(camera_height_m=h, align=None, n_iter=2, max_final_step=None))
+    its = np.asarray(free.iterates)
+    step = abs(np.log(np.hypot(*its[2, :2]) / np.hypot(*its[1, :2])))
+    assert bool(free.converged) and step > 1e-5
+    np.testing.assert_allclose(np.asarray(free.xypsi), its[-1], atol=1e-6)
+    for tol, settled in ((step * 1.01, True), (step * 0.99, False)):
+        r = refine(ref, mesh, img, f.K, init, RefineConfig(camera_height_m=h, align=None, n_iter=2, max_final_step=tol))
+        assert bool(r.converged) == settled and not bool(r.declined)
+        np.testing.assert_allclose(np.asarray(r.xypsi), its[-1] if settled else np.asarray(init), atol=1e-6)
+        np.testing.assert_allclose(np.asarray(r.iterates), its, atol=1e-6)
+        assert settled or (float(r.flip_prob) == -1.0 and np.all(np.asarray(r.roll_pitch) == 0))
+    with pytest.raises(RhamlError, match="RefineConfig.max_final_step"):
+        RefineConfig(max_final_step=0.0)

@@ -82,6 +82,14 @@ class RefineConfig:
     fine_spread: tuple[float, float, float] = (0.01, float(np.deg2rad(0.2)), float(np.deg2rad(2.0)))
     """the views' offsets: log range, bearing (rad), heading (rad); the fine refiner's training
     starts' smaller spreads (`RefinerConfig.starts` "fine")"""
+    max_final_step: float | None = 0.01
+    """the cascade has converged when its last coarse learned iteration moved the range by at most
+    this fraction (|log r_n / r_(n-1)|; needs n_iter >= 2; None: no check). An unconverged cascade
+    (RefineResult.converged False) keeps the initial pose, as a declined one does: on images whose
+    look the refiner does not read its iterations keep moving (on the validation looks its last
+    coarse step moved the range by a median 0.14-0.19 % on ours, far more on one-paint robots), and
+    the pose graph fuses such frames better from the IML's estimate (BENCHMARKS.md, "A convergence
+    check for the refiner")"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
@@ -90,6 +98,8 @@ class RefineConfig:
     def __post_init__(self):
         from rhaml_jax.errors import RhamlError
 
+        if self.max_final_step is not None and not self.max_final_step > 0:
+            raise RhamlError(f"RefineConfig.max_final_step must be > 0 or None, got {self.max_final_step}")
         if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
             raise RhamlError(f"RefineConfig.fine_views must be in 1..{len(_VIEW_SIGNS)}, got {self.fine_views}")
         if len(self.fine_spread) != 3 or min(self.fine_spread) < 0:
@@ -109,6 +119,8 @@ class RefineResult(NamedTuple):
     #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations;
     #                      with a fine refiner fine_iter more rows: its iterations
     flip_prob: jax.Array  # () the scorer's probability that the heading faces the other way (-1: no scorer ran)
+    converged: jax.Array  # () bool: the learned iterations settled (RefineConfig.max_final_step); if not, the
+    #                       initial pose is returned as for a declined start (always True without a refiner)
 
 
 def _T_cam(xypsi, h):
@@ -127,7 +139,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
     image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
     else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
-    camera, projecting outside the image, non-finite) returns the initial pose, never NaN.
+    camera, projecting outside the image, non-finite) returns the initial pose, never NaN; so does
+    an unconverged one (cfg.max_final_step: its last coarse iteration still moved the range).
     Differentiable wrt init_xypsi and the refiner's params (the alignment's increments are
     straight-through, see rhaml_jax.refine.alignment)."""
     from rhaml_jax.errors import RhamlError
@@ -150,6 +163,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     target = box = None
     flip_prob = jnp.float32(-1.0)
     conf = jnp.float32(0.0)
+    converged = jnp.bool_(True)
     if refiner is not None:
         rc = refiner.cfg
         n_iter = rc.n_iter if cfg.n_iter is None else cfg.n_iter
@@ -163,6 +177,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             return xyp, rp
 
         xyp, roll_pitch = learned(safe, n_iter)
+        if cfg.max_final_step is not None and n_iter >= 2:
+            converged = _final_step(iterates[-2], iterates[-1]) <= cfg.max_final_step
         if scorer is not None:
             xyp, flip_prob, conf = _heading_search(scorer, mesh, corners, image, K, xyp, h, cfg.flip_threshold)
             iterates.append(xyp)
@@ -194,15 +210,23 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         else:
             r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
         xyp, score, conf = r.xypsi, r.score, r.flip_confidence
-    xyp = jnp.where(declined, init, xyp)
+    keep_init = declined | ~converged
+    xyp = jnp.where(keep_init, init, xyp)
     its = jnp.stack(iterates)
-    its = jnp.where(declined, init[None], its)
-    roll_pitch = jnp.where(declined, 0.0, roll_pitch)
+    its = jnp.where(declined, init[None], its)  # an unconverged run's iterates stay, to inspect
+    roll_pitch = jnp.where(keep_init, 0.0, roll_pitch)
     T = jaxlie.SE3.from_rotation_and_translation(
         jaxlie.SO3.from_rpy_radians(roll_pitch[0], roll_pitch[1], xyp[2]),
         jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
-    return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(declined, 0.0, conf), score, its,
-                        jnp.where(declined, -1.0, flip_prob))
+    return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(keep_init, 0.0, conf), score, its,
+                        jnp.where(keep_init, -1.0, flip_prob), converged | declined)
+
+
+def _final_step(a, b):
+    """|log(r_b / r_a)|: how far the range moved from planar pose a (3,) to b (3,)."""
+    ra = jnp.maximum(jnp.hypot(a[0], a[1]), 1e-6)  # guard: no log(0) (check_init declines such starts)
+    rb = jnp.maximum(jnp.hypot(b[0], b[1]), 1e-6)
+    return jnp.abs(jnp.log(rb / ra))
 
 
 def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int):
