@@ -70,6 +70,8 @@ class Args:
     (what a perfect mask would add after them)"""
     fine_views: int = RefineConfig.fine_views
     """with --fine-refiner: `RefineConfig.fine_views` (starts averaged)"""
+    max_final_step: float | None = RefineConfig.max_final_step
+    """`RefineConfig.max_final_step` (a row after the learned ones: the start kept where the refiner did not converge)"""
     fine_spread_scale: float = 1.0
     """with --fine-views > 1: `RefineConfig.fine_spread` times this"""
     scorer: Path | None = None
@@ -101,10 +103,10 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     post iterations; with a fine refiner: then after each of its iterations) and, with
     --align-predicted, after the alignment to the predicted mask."""
     rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
-                      fine_views=a.fine_views, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
+                      fine_views=a.fine_views, max_final_step=a.max_final_step, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
     f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc, fine=fine))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
-    its, est, ms_it, ms_all, flip_prob = [], [], [], [], []
+    its, est, ms_it, ms_all, flip_prob, conv = [], [], [], [], [], []
     for j, fr in enumerate(frames):
         im = jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255
         args = (im, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
@@ -113,7 +115,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
         t = time.perf_counter()
         r1 = jax.block_until_ready(f_it(*args))
         ms_it.append(1e3 * (time.perf_counter() - t))
-        its.append(np.asarray(r1.iterates)); flip_prob.append(float(r1.flip_prob))
+        its.append(np.asarray(r1.iterates)); flip_prob.append(float(r1.flip_prob)); conv.append(bool(r1.converged))
         if a.align_predicted:
             if j == 0:
                 jax.block_until_ready(f_all(*args))
@@ -121,7 +123,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
             est.append(np.asarray(jax.block_until_ready(f_all(*args)).xypsi))
             ms_all.append(1e3 * (time.perf_counter() - t))
     its = np.stack(its)
-    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "flip_prob": flip_prob,
+    per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "flip_prob": flip_prob, "converged": conv,
                       **({"learned_aligned": np.stack(est).tolist()} if est else {})})
     n_iter = ref.cfg.n_iter
     names = ["start"] + [f"learned iteration {k}" for k in range(1, n_iter + 1)]
@@ -133,6 +135,10 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     for k, stage in enumerate(names):
         rows.append({"start": name, "stage": stage, "frames": len(gt), "stride": a.stride,
                      **summary(its[:, k], gt, ms_it if k == its.shape[1] - 1 else None)})
+    if rc.max_final_step is not None:  # what refine() answers: the start where the iterations did not settle
+        kept = np.asarray(conv)[:, None]
+        rows.append({"start": name, "stage": f"+ convergence check ({int((~kept).sum())} kept the start)", "frames": len(gt),
+                     "stride": a.stride, **summary(np.where(kept, its[:, -1], its[:, 0]), gt)})
     if est:
         rows.append({"start": name, "stage": "learned + alignment (predicted mask)", "frames": len(gt), "stride": a.stride,
                      **summary(np.stack(est), gt, ms_all)})

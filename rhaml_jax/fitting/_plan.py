@@ -86,6 +86,15 @@ splits (0.279 / 0.174), so it takes up to 6,000 steps once AMLNet and the zoom s
 zoom stage's heading comes first: at 131 minutes from scratch the extra steps would have cost
 it 3,400 of its 17,000).
 
+Then the fine refiner, the cascade's second network (`refiner_fine_cpu`, run once after the
+refiner's iterations, as the shipped pair is), from the refiner's weights on the same v3 + v1
+crops, its starts drawn as a refiner leaves them, for a third as many steps
+(`FINE_STEP_FRACTION`, paid from the refiner's share: the share's steps cost 4/3 as much).
+Measured behind session 28's 180-minute fit (its AMLNet and zoom stage, its refiner's 6,000
+steps, then 2,000 fine steps, 4 min): on the 12 validation sequences IML+IR's RMS position error
+0.88x (interval 0.84-0.91) and its ATE 0.99x (0.98-1.00), IML+IR+PGO level (1.00, 0.90-1.13),
+nothing worse over all looks (BENCHMARKS.md, "`fit` trains the fine refiner").
+
 Pacing: the rates are this machine's, alone; a busier or slower machine, or a rate measured
 wrong, overruns the budget by as much. So before each stage begins, the finished stages' seconds
 are compared with their planned ones (`slowness`, at least 1), and if the stages left, at that
