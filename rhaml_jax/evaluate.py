@@ -16,6 +16,7 @@ pipeline, so data sets of other tools work.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
@@ -65,6 +66,9 @@ class Args:
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
     the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; "none": without;
     default: the shipped `refine.DEFAULT_FINE_REFINER` when --refiner is not given, else none)"""
+    max_final_step: float | None = 0.01
+    """the ir module's convergence check (`RefineConfig.max_final_step`): where the refiner's last
+    coarse iteration moves the range by more than this fraction, IML's estimate stands; None: off"""
     pgo_mode: Literal["batch", "online"] = "batch"
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
@@ -138,6 +142,7 @@ def _load(args: Args, modules):
 
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
                                                     segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner)
+        refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   calibrate_range=not args.no_range_calibration)

@@ -127,3 +127,15 @@ def test_pgo_metrics_match_its_own_per_frame_json(setup, tmp_path):
     assert m["pgo_rejected"] == sum(r["detected"] and not r["pgo_inlier"] for r in rows)
     assert m["modules"] == ["iml", "pgo"] and m["pgo_mode"] == "batch" and m["information"] == "noise_model"
     assert len(m["range_model"]) == 1 and len(m["range_model"][0]) == 2  # one scene: its range model's c
+
+
+def test_the_convergence_check_option_follows_the_library():
+    """`--max-final-step` defaults to `RefineConfig`'s and turns off with None."""
+    import tyro
+
+    from rhaml_jax.evaluate import Args
+    from rhaml_jax.refine import RefineConfig
+
+    assert tyro.cli(Args, args=["--data", "x"]).max_final_step == RefineConfig().max_final_step
+    assert tyro.cli(Args, args=["--data", "x", "--max-final-step", "None"]).max_final_step is None
+    assert tyro.cli(Args, args=["--data", "x", "--max-final-step", "0.02"]).max_final_step == 0.02
