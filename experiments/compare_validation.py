@@ -1,7 +1,7 @@
 """Is candidate B better than A on the validation looks, beyond what the choice of frames explains?
 
     python experiments/compare_validation.py A B [--looks ours ood mono] [--ev /work/runs/validation]
-        [--data /work/data] [--block 25] [--draws 2000] [--seed 0] [--out OUT.json]
+        [--data /work/data] [--block 25] [--draws 2000] [--seed 0] [--extra LOOK SET ...] [--out OUT.json]
 
 A and B are labels of `experiments/validate_networks.sh` runs (EV/{label}_{set}.json). Per row
 (IML, IML+PGO, IML+IR, IML+IR+PGO; the pose-graph rows refitted from the stored estimates as
@@ -116,14 +116,21 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=25)
     ap.add_argument("--draws", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--extra", nargs=2, action="append", default=[], metavar=("LOOK", "SET"),
+                    help="also count SET (a folder under --data, scored as EV/LABEL_SET.json) in LOOK; repeatable")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
     if a.block < 1 or a.draws < 100:
         ap.error("--block must be >= 1 and --draws >= 100")
+    looks_sets = {look: list(sets) for look, sets in LOOKS.items()}
+    for look, s in a.extra:
+        if look not in looks_sets:
+            ap.error(f"--extra {look} {s}: no look {look!r} (one of {', '.join(LOOKS)})")
+        looks_sets[look].append(s)
     runs = {}
     for look in a.looks:
         for label in (a.a, a.b):
-            for s in LOOKS[look]:
+            for s in looks_sets[look]:
                 path = a.ev / f"{label}_{s.replace('/', '_')}.json"
                 if not path.exists():
                     ap.error(f"{path}: not found (run LABEL={label} experiments/validate_networks.sh)")
@@ -137,11 +144,11 @@ def main() -> None:
         name = "+".join(looks)
         out[name] = {}
         for row in ROWS:
-            sets = [s for look in looks for s in LOOKS[look]]
+            sets = [s for look in looks for s in looks_sets[look]]
             if not all(row in runs[label, s] for label in (a.a, a.b) for s in sets):
                 continue
             for fig in FIGURES:
-                q = {label: {look: [runs[label, s][row]["q"][fig] for s in LOOKS[look]] for look in looks} for label in (a.a, a.b)}
+                q = {label: {look: [runs[label, s][row]["q"][fig] for s in looks_sets[look]] for look in looks} for label in (a.a, a.b)}
                 r = compare(q[a.a], q[a.b], a.block, a.draws, a.seed)
                 for label, key in ((a.a, "a"), (a.b, "b")):
                     r[f"flips_{key}"] = sum(runs[label, s][row]["flips"] for s in sets)

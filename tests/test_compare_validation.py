@@ -54,3 +54,17 @@ def test_blocks_cover_the_sequence_and_stay_inside_it():
     for n, block in ((200, 25), (7, 25), (101, 10)):
         i = cv.block_indices(rng, n, block)
         assert len(i) == n and i.min() >= 0 and i.max() < n
+
+
+def test_an_extra_sequence_must_name_a_look(tmp_path, monkeypatch, capsys):
+    """`--extra LOOK SET` must name a look: otherwise one clear line, exit status 2, as for a
+    label whose runs are missing (the file it looked for named)."""
+    import pytest
+
+    cv = _cv()
+    for argv, msg in ((["a", "b", "--extra", "nope", "val_x/circle"], "no look 'nope'"),
+                      (["a", "b", "--looks", "ood", "--extra", "ood", "val_x/circle", "--ev", str(tmp_path)], "a_val_ood_circle.json: not found")):
+        monkeypatch.setattr(sys, "argv", ["compare_validation.py", *argv])
+        with pytest.raises(SystemExit) as e:
+            cv.main()
+        assert e.value.code == 2 and msg in capsys.readouterr().err
