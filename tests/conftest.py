@@ -23,6 +23,23 @@ def pytest_configure(config):
     enable_compile_cache()
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drops every compiled program after each test module. XLA:CPU maps each executable's code
+    and data into 3 memory mappings that live as long as JAX's caches hold the executable; the
+    whole suite in one process compiled about 20,000 programs (eager ops compile one per shape)
+    and reached Linux's default vm.max_map_count (65,530), where the next compile or
+    compilation-cache read crashed natively (SIGSEGV or SIGABRT, at whichever test came next).
+    A later module that needs a program again reads it back from the persistent cache."""
+    yield
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
+
+
 def shared_path(*parts: str) -> Path:
     """A path under ../shared/data; skips the test with a reason when it is absent."""
     p = SHARED_DATA.joinpath(*parts)
