@@ -39,7 +39,7 @@ from rhaml_jax.sequence import group_scenes, load_scene  # noqa: E402
 
 LOOKS = {  # the validation sets of experiments/validate_networks.sh, by look
     "ours": ["val_scen_s7_500/circle", "val_scen_s7_500/sine", "val_scen_s8_500/circle", "val_scen_s8_500/sine"],
-    "ood": ["val_ood/circle", "val_ood/sine"],
+    "ood": ["val_ood/circle", "val_ood/sine", "val_ood_s2/circle", "val_ood_s2/sine"],  # seeds 1 and 2 (s2: session 32 on)
     "mono": [f"val_mono/{s}_{c}" for c in ("purple", "orange", "grey") for s in ("circle", "sine")],
 }
 ROWS = ("IML", "IML+PGO", "IML+IR", "IML+IR+PGO")

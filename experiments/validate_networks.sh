@@ -1,9 +1,9 @@
 #!/bin/bash
 # Scores one set of networks on the validation sets, as the shipping choices are made
 # (BENCHMARKS.md, "How a default is chosen"): ours (circle + sine of seeds 7 and 8, 500 frames
-# each), the OOD look (circle + sine with odometry; random and background for detection) and the
-# one-paint looks (circle + sine of seed 7, 300 frames each, the robot purple, orange or grey:
-# experiments/val_mono.py), with `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of
+# each), the OOD look (circle + sine with odometry of seeds 1 and 2; random and background of seed 1
+# for detection) and the one-paint looks (circle + sine of seed 7, 300 frames each, the robot
+# purple, orange or grey: experiments/val_mono.py), with `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of
 # experiments/pipeline_from_json.py. Never the held-out set. Two labels are compared by
 # experiments/compare_validation.py.
 #
@@ -22,7 +22,7 @@ ev() {  # set modules
   [ -f "$j" ] || $PY -m rhaml_jax.evaluate --data "$DATA/$1" --modules "$2" --zoom-mirror "${NETARGS[@]}" --json "$j" > "${j%.json}.log"
 }
 OURS="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine"
-OOD="val_ood/circle val_ood/sine"
+OOD="val_ood/circle val_ood/sine val_ood_s2/circle val_ood_s2/sine"
 MONO=$(for c in purple orange grey; do for s in circle sine; do echo "val_mono/${s}_$c"; done; done)
 for d in $OURS $OOD $MONO; do ev "$d" iml,ir,pgo; done
 for d in val_ood/random val_ood/background; do ev "$d" iml,ir; done
