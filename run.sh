@@ -22,7 +22,9 @@ case "$what" in
     # XLA compiles dominate the suite; a persistent cache makes reruns on this machine fast.
     export JAX_COMPILATION_CACHE_DIR="${JAX_COMPILATION_CACHE_DIR:-$HOME/.cache/rhaml_jax/xla}"
     export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="${JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS:-1}"
-    exec .venv/bin/python -m pytest -q "$@"
+    # Test files spread over RHAML_TEST_WORKERS processes (default 2, this machine's cores; each
+    # peaks at a few GB), a file's tests in one process so its module fixtures are built once.
+    exec .venv/bin/python -m pytest -q -n "${RHAML_TEST_WORKERS:-2}" --dist loadfile "$@"
     ;;
   *)
     echo "usage: bash run.sh main|test" >&2
