@@ -3,9 +3,9 @@
 # (BENCHMARKS.md, "How a default is chosen"): ours (circle + sine of seeds 7 and 8, 500 frames
 # each), the OOD look (circle + sine with odometry of seeds 1 and 2; random and background of seed 1
 # for detection) and the one-paint looks (circle + sine of seed 7, 300 frames each, the robot
-# purple, orange or grey: experiments/val_mono.py), with `evaluate --modules iml,ir,pgo --zoom-mirror`; then the rows of
-# experiments/pipeline_from_json.py. Never the held-out set. Two labels are compared by
-# experiments/compare_validation.py.
+# purple, orange or grey: experiments/val_mono.py), with `evaluate --modules iml,ir,pgo
+# --zoom-mirror`; then the rows of experiments/pipeline_from_json.py. Never the held-out set. Two
+# labels are compared by experiments/compare_validation.py.
 #
 #   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner[,fine]}
 #   LABEL=default bash experiments/validate_networks.sh                    # the shipped defaults
