@@ -26,9 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
+from rhaml_jax.planar import wrap_angle
 
 
 def last_coarse_steps(bench_json: Path, n_iter: int = 4) -> np.ndarray:
@@ -63,7 +61,7 @@ def main() -> None:
                 raise SystemExit(f"{a.bench / seq}.json: {len(steps)} frames, {path}: {len(rows)} detected")
             fire = steps > a.threshold
         else:
-            fire = [abs(wrap(x["ir_est"][2] - x["iml_est"][2])) > math.radians(a.threshold) for x in rows]
+            fire = [abs(wrap_angle(x["ir_est"][2] - x["iml_est"][2])) > math.radians(a.threshold) for x in rows]
         for x, f in zip(rows, fire):
             if f:
                 x["ir_est"] = list(x["iml_est"]) if a.keep == "whole" else [*x["ir_est"][:2], x["iml_est"][2]]
