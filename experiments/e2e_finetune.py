@@ -102,18 +102,26 @@ def make_fns(model, tx, iml_weight: float = 0.0):
     return jax.jit(jax.value_and_grad(loss, has_aux=True)), jax.jit(update)
 
 
+def shipped_zoom() -> Path:
+    """The default IML's zoom-in stage (`iml.DEFAULT_ZOOM`): what both fine-tunings start from
+    and what they are compared with, beside the default AMLNet and IR cascade."""
+    from rhaml_jax import iml
+    from rhaml_jax.amlnet import shipped_checkpoint
+
+    return shipped_checkpoint(iml.DEFAULT_ZOOM)
+
+
 def train_e2e(a, run_dir: Path) -> dict:
     """The end-to-end fine-tuning (resumable): {"seconds" (steps after each process's first,
     which is mostly compilation), "steps"}."""
     import jax
 
     from rhaml_jax import iml, pipeline, refine
-    from rhaml_jax.amlnet import shipped_checkpoint
     from rhaml_jax.amlnet.checkpoint import Checkpoints
     from rhaml_jax.amlnet.steps import make_optimizer
 
     seqs = load_sequences([Path(p) for p in a.train], a.window)
-    iml_model, iml_params = iml.load_iml(zoom=shipped_checkpoint("zoom_cpu"), zoom_mirror=True)
+    iml_model, iml_params = iml.load_iml(zoom=shipped_zoom(), zoom_mirror=True)
     refine_cfg, refiner = refine.load_stage(None, a.train[0])
     mods = tuple(a.through.split(","))
     model = pipeline.PipelineModel(iml_model, pipeline.PipelineConfig(modules=mods, chunk=a.window),
@@ -125,7 +133,7 @@ def train_e2e(a, run_dir: Path) -> dict:
     opt_state = tx.init(zp)
 
     ck = Checkpoints(run_dir, keep=2)
-    src = Checkpoints(shipped_checkpoint("zoom_cpu"), read_only=True)
+    src = Checkpoints(shipped_zoom(), read_only=True)
     meta = {k: v for k, v in src.meta().items() if k in ("model_config", "robot")}
     src.close()
     meta |= {"weights_only": False, "train_config": {"clip": a.clip, "lr": a.lr, "steps": a.steps, "window": a.window,
@@ -245,7 +253,7 @@ def paired_change(base: np.ndarray, new: np.ndarray, draws: int = 2000, seed: in
 
 def run(a) -> dict:
     from rhaml_jax import tune_allocator
-    from rhaml_jax.amlnet import shipped_checkpoint
+    from rhaml_jax.amlnet.checkpoint import checkpoint_meta
 
     tune_allocator()
     runs = Path(a.runs)
@@ -260,14 +268,14 @@ def run(a) -> dict:
         alone_dir = runs / "alone"
         alone_steps = a.alone_steps or max(1, int(res["e2e"]["seconds"] / a.alone_step_seconds))
         data = bop_for_alone(a.train, a.val, runs / "alone_bop")
-        res["alone"] = _paper.train("zoom", "zoom_cpu", data, alone_dir, alone_steps, a.seed,
-                                    "--init", str(shipped_checkpoint("zoom_cpu")), "--lr", str(a.lr), "--warmup",
+        res["alone"] = _paper.train("zoom", checkpoint_meta(shipped_zoom())["model_config"]["name"], data, alone_dir,
+                                    alone_steps, a.seed, "--init", str(shipped_zoom()), "--lr", str(a.lr), "--warmup",
                                     str(a.warmup), "--batch", "32", "--w-xy", "69.4", "526", "--val-every",
                                     str(alone_steps), "--val-batches", "2", *a.train_args)
         res["alone"]["steps"] = alone_steps
     _paper.write_json(Path(a.out), res)
     sets = _paper.scenario_sets(a.ours, a.heldout, a.frames)
-    zoom_dirs = {"shipped": shipped_checkpoint("zoom_cpu"), "alone": alone_dir, "e2e": e2e_dir}
+    zoom_dirs = {"shipped": shipped_zoom(), "alone": alone_dir, "e2e": e2e_dir}
     zoom_dirs |= dict(c.split("=", 1) for c in a.compare)
     res["eval"], frames = evaluate_stages(zoom_dirs, sets)
     _paper.write_npz(Path(a.out).with_suffix(".npz"), frames)

@@ -36,36 +36,53 @@ PAPER = {"frontnet": ((30.3, 36.7), (50.9, 75.8), (64.9, 53.2), 2.21, 0.33, 0.07
 
 
 def refiner_size() -> dict:
-    """The shipped refiner's parameters (leaves of its params pytree) and MACs per iteration at
-    batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and matrix products)."""
+    """The default IR cascade (`refine.load_stage`: DEFAULT_REFINER for `RefineConfig` n_iter
+    iterations, then DEFAULT_FINE_REFINER for fine_iter): parameters (leaves of both params pytrees)
+    and MACs per frame at batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and
+    matrix products)."""
     import math
 
     import jax
     import jax.numpy as jnp
 
+    from rhaml_jax.amlnet import shipped_checkpoint
     from rhaml_jax.amlnet.count import jaxpr_macs
-    from rhaml_jax.refine import net, shipped_refiner
+    from rhaml_jax.refine import DEFAULT_FINE_REFINER, RefineConfig, load_refiner, net, shipped_refiner
 
-    r = shipped_refiner()
-    x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
-    macs = jaxpr_macs(jax.make_jaxpr(lambda p, x: net.apply(r.cfg, p, x))(r.params, x).jaxpr)
-    return {"params": int(sum(math.prod(v.shape) for v in jax.tree.leaves(r.params))), "macs": int(macs),
-            "iterations": r.cfg.n_iter}
+    cfg = RefineConfig()
+    out = {"params": 0, "macs": 0, "networks": []}
+    for r, n in ((shipped_refiner(), cfg.n_iter), (load_refiner(shipped_checkpoint(DEFAULT_FINE_REFINER)), cfg.fine_iter)):
+        n = r.cfg.n_iter if n is None else n
+        x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
+        macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x, r=r: net.apply(r.cfg, p, x))(r.params, x).jaxpr))
+        params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(r.params)))
+        out["params"] += params
+        out["macs"] += n * macs
+        out["networks"].append(f"{r.cfg.name} x {n} ({params} params, {macs} MACs each)")
+    return out
 
 
-def sizes(frontnet_config: str, amlnet_config: str = "cpu", zoom_config: str = "zoom_cpu") -> dict:
-    """Params and MACs per frame of each row (batch 1, each network at its input size)."""
-    from rhaml_jax.amlnet import describe
+def sizes(frontnet_config, amlnet_config, zoom_config) -> dict:
+    """Params and MACs per frame of each row (batch 1, each network at its input size); configs
+    are names or the loaded networks' `ModelConfig`s."""
+    from rhaml_jax.amlnet import build, get_config
+    from rhaml_jax.amlnet.count import count_macs, count_params
+
+    def describe(c):
+        cfg = get_config(c) if isinstance(c, str) else c
+        net = build(cfg, abstract=True)
+        return {"name": cfg.name, "params": count_params(cfg, net=net), "macs": count_macs(cfg, net=net),
+                "input_shape": [*cfg.input_hw, 3]}
 
     fn, aml, zoom = (describe(c) for c in (frontnet_config, amlnet_config, zoom_config))
     ref = refiner_size()
     iml = {"params": aml["params"] + zoom["params"], "macs": aml["macs"] + 2 * zoom["macs"]}
-    return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{frontnet_config}, {fn['input_shape']}"},
-            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"{amlnet_config}, {aml['input_shape']}"},
-            "iml": iml | {"size_note": f"AMLNet + {zoom_config} x 2 (the crop and its mirror image)"},
-            "rhaml": {"params": iml["params"] + ref["params"], "macs": iml["macs"] + ref["iterations"] * ref["macs"],
-                      "size_note": f"IML + refiner_cpu x {ref['iterations']} iterations ({ref['params']} params, "
-                                   f"{ref['macs']} MACs each; rendering and the pose graph not counted)"}}
+    return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{fn['name']}, {fn['input_shape']}"},
+            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"{aml['name']}, {aml['input_shape']}"},
+            "iml": iml | {"size_note": f"AMLNet + {zoom['name']} x 2 (the crop and its mirror image)"},
+            "rhaml": {"params": iml["params"] + ref["params"], "macs": iml["macs"] + ref["macs"],
+                      "size_note": f"IML + the IR cascade: {', '.join(ref['networks'])}; rendering and the pose "
+                                   "graph not counted"}}
 
 
 def validation_curve(metrics_jsonl: Path) -> list[dict]:
@@ -99,7 +116,7 @@ def run(a) -> dict:
     loads = {"frontnet": dict(amlnet=run_dir, no_zoom=True), "amlnet": dict(amlnet=a.amlnet, no_zoom=True),
              "iml": dict(nets, zoom_mirror=True), "rhaml": dict(nets, zoom_mirror=True)}
     iml_model, _ = iml.load_iml(**loads["iml"])
-    size, frames = sizes(a.frontnet_config, iml_model.amlnet.cfg.name, iml_model.zoom.cfg.name), {}
+    size, frames = sizes(a.frontnet_config, iml_model.amlnet.cfg, iml_model.zoom.cfg), {}
     for set_name, scenes in sets.items():  # the whole true paths, detected or not: truth/SET/SCENARIO (N, 3)
         for scene in scenes:
             frames[f"truth/{set_name}/{_paper.data_root(scene[0]).name}"] = np.array([f.xypsi for f in scene if f.observed])
@@ -156,8 +173,8 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario")
     ap.add_argument("--frontnet-config", default="frontnet", help="e.g. tiny_frontnet for tests")
     ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint of the AMLNet, IML and RHAML rows (default: the "
-                                                    "shipped amlnet_cpu; the paper's scale: a `paper`-config run)")
-    ap.add_argument("--zoom", default=None, help="its zoom-in stage (default: the shipped zoom_cpu)")
+                                                    "shipped default, iml.DEFAULT_AMLNET; the paper's scale: a `paper`-config run)")
+    ap.add_argument("--zoom", default=None, help="its zoom-in stage (default: the shipped iml.DEFAULT_ZOOM)")
     ap.add_argument("--train-args", nargs=argparse.REMAINDER, default=[], help="more train flags (last)")
     return run(ap.parse_args(argv))
 
