@@ -273,6 +273,11 @@ def run(a) -> dict:
                                     str(a.warmup), "--batch", "32", "--w-xy", "69.4", "526", "--val-every",
                                     str(alone_steps), "--val-batches", "2", *a.train_args)
         res["alone"]["steps"] = alone_steps
+        if res["alone"]["seconds"] < res["e2e"]["seconds"]:  # its wall time includes start-up: an upper bound
+            print(f"warning: the alone stage trained for {res['alone']['seconds']:.0f} s, less than the end-to-end "
+                  f"run's {res['e2e']['seconds']:.0f} s: this machine takes at most "
+                  f"{res['alone']['seconds'] / alone_steps:.3f} s per step; set --alone-step-seconds to that and "
+                  f"delete {alone_dir} to give it the same time", file=sys.stderr)
     _paper.write_json(Path(a.out), res)
     sets = _paper.scenario_sets(a.ours, a.heldout, a.frames)
     zoom_dirs = {"shipped": shipped_zoom(), "alone": alone_dir, "e2e": e2e_dir}
@@ -332,7 +337,8 @@ def parse(argv=None) -> argparse.Namespace:
     ap.add_argument("--compare", nargs="*", default=[], help="more zoom stages to evaluate, as NAME=CHECKPOINT_DIR")
     ap.add_argument("--alone-steps", type=int, default=None, help="default: the e2e wall time / --alone-step-seconds")
     ap.add_argument("--alone-step-seconds", type=float, default=0.25,
-                    help="a zoom training step of 32 crops here (BENCHMARKS.md: 120-190 crops/s)")
+                    help="a zoom training step of 32 crops on this machine (0.25 s in session 8, 0.15 s on "
+                         "session 33's: BENCHMARKS.md; a warning says when it was too high)")
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each evaluation scenario")
     ap.add_argument("--train-args", nargs=argparse.REMAINDER, default=[])
     return ap.parse_args(argv)
