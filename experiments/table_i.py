@@ -65,21 +65,14 @@ def refiner_size() -> dict:
 def sizes(frontnet_config, amlnet_config, zoom_config) -> dict:
     """Params and MACs per frame of each row (batch 1, each network at its input size); configs
     are names or the loaded networks' `ModelConfig`s."""
-    from rhaml_jax.amlnet import build, get_config
-    from rhaml_jax.amlnet.count import count_macs, count_params
-
-    def describe(c):
-        cfg = get_config(c) if isinstance(c, str) else c
-        net = build(cfg, abstract=True)
-        return {"name": cfg.name, "params": count_params(cfg, net=net), "macs": count_macs(cfg, net=net),
-                "input_shape": [*cfg.input_hw, 3]}
+    from rhaml_jax.amlnet import describe
 
     fn, aml, zoom = (describe(c) for c in (frontnet_config, amlnet_config, zoom_config))
     ref = refiner_size()
     iml = {"params": aml["params"] + zoom["params"], "macs": aml["macs"] + 2 * zoom["macs"]}
-    return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{fn['name']}, {fn['input_shape']}"},
-            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"{aml['name']}, {aml['input_shape']}"},
-            "iml": iml | {"size_note": f"AMLNet + {zoom['name']} x 2 (the crop and its mirror image)"},
+    return {"frontnet": {"params": fn["params"], "macs": fn["macs"], "size_note": f"{fn['config']}, {fn['input_shape']}"},
+            "amlnet": {"params": aml["params"], "macs": aml["macs"], "size_note": f"{aml['config']}, {aml['input_shape']}"},
+            "iml": iml | {"size_note": f"AMLNet + {zoom['config']} x 2 (the crop and its mirror image)"},
             "rhaml": {"params": iml["params"] + ref["params"], "macs": iml["macs"] + ref["macs"],
                       "size_note": f"IML + the IR cascade: {', '.join(ref['networks'])}; rendering and the pose "
                                    "graph not counted"}}

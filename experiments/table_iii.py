@@ -2,7 +2,7 @@
 both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
 
   python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
-      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT]
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT [--fine-refiner CKPT]]
 
 Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
 """
@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 
-def main():
+def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ours", required=True)
     ap.add_argument("--heldout")
@@ -24,8 +24,10 @@ def main():
     ap.add_argument("--frames", type=int, default=None, help="first N frames of each scenario (default: all)")
     ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint folder (default: the shipped one)")
     ap.add_argument("--zoom", default=None, help="zoom-stage checkpoint folder (default: the shipped one)")
-    ap.add_argument("--refiner", default=None, help="refiner checkpoint folder for ir (default: the shipped one)")
-    a = ap.parse_args()
+    ap.add_argument("--refiner", default=None, help="refiner checkpoint folder for ir (default: the shipped cascade)")
+    ap.add_argument("--fine-refiner", default=None, help="a cascade's fine refiner after --refiner (fit's networks/fine; "
+                                                         "without --refiner the shipped one runs, 'none' turns it off)")
+    a = ap.parse_args(argv)
     from rhaml_jax import iml, pgo, tune_allocator
 
     tune_allocator()
@@ -44,12 +46,14 @@ def main():
             for info in infos:
                 fusion = pgo.FusionConfig(information=info) if info else None
                 t = time.perf_counter()
-                m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion, a.refiner)
+                m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion, a.refiner,
+                                       a.fine_refiner)
                 row = {"set": set_name, "modules": combo, "information": info, **m,
                        "wall_seconds": round(time.perf_counter() - t, 1)}
                 print(json.dumps(row), flush=True)
                 out["rows"].append(row)
                 Path(a.out).write_text(json.dumps(out, indent=1))
+    return out
 
 
 if __name__ == "__main__":

@@ -190,6 +190,11 @@ def test_paper_and_frontnet_counts():
     p, m = count_params(fn), count_macs(fn)
     assert round(p / 1e6, 2) == 0.32, p  # "0.32 M" (323,364)
     assert round(m / 1e9, 3) == 0.066, m
+    # describe: by name, or a network's own config (a checkpoint's, which a name may not match)
+    from rhaml_jax.amlnet import describe
+
+    assert describe("frontnet") == describe(fn) == {"config": "frontnet", "params": p, "macs": m, "input_shape": [224, 224, 3]}
+    assert describe(replace(fn, name="mine"))["config"] == "mine"
 
 
 def test_config_roundtrip_and_validation():

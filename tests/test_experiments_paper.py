@@ -1,4 +1,4 @@
-"""experiments/table_i.py, fig5_violin.py and fig6_trajectories.py at tiny size: a 13-image
+"""experiments/table_i.py, table_iii.py, fig5_violin.py and fig6_trajectories.py at tiny size: a 13-image
 training set, 6-frame circle and sine scenarios (ours and the held-out look, the built-in robot so
 the shipped networks' fingerprint checks pass), tiny_frontnet trained 2 steps, 4 frames per
 scenario; every row and set in the JSON, finite metrics where the robot was detected, the
@@ -58,8 +58,10 @@ def test_table_i_json_and_npz(table):
                 assert np.isfinite(est).all()
                 assert all(math.isfinite(v) for k in ("dx_cm", "dy_cm", "dpsi_deg") for v in m[k])
                 assert math.isfinite(m["ate"]) and m["fps"] > 0
-    # RHAML's size is IML's plus the refiner's four iterations
-    r = res["rows"]
+    # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations and the fine refiner's one
+    r, ir = res["rows"], table_i.refiner_size()
+    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", "refiner_fine_cpu x 1"]
+    assert r["rhaml"]["params"] == r["iml"]["params"] + ir["params"] and r["rhaml"]["macs"] == r["iml"]["macs"] + ir["macs"]
     assert r["rhaml"]["params"] > r["iml"]["params"] > r["amlnet"]["params"]
     assert r["rhaml"]["macs"] > r["iml"]["macs"] > r["amlnet"]["macs"]
 
@@ -103,3 +105,27 @@ def test_stage_diagnostics(table, tmp_path):
     for r in d["zoom_oracle"]:
         assert r["n"] == 4 and 0 <= r["flips"] <= 1 and 0 <= r["median_dpsi_deg"] <= 180
         assert r["dx_cm"] >= 0 and r["median_range_ratio"] > 0
+
+
+def test_table_iii_names_the_cascade(table):
+    """experiments/table_iii.py with the shipped cascade named (--refiner, --fine-refiner) gives
+    Table I's RHAML row (the same pipeline on the same frames), for both information models;
+    without the fine refiner it gives another."""
+    import table_iii
+
+    from rhaml_jax.amlnet import shipped_checkpoint
+    from rhaml_jax.refine import DEFAULT_FINE_REFINER, DEFAULT_REFINER
+
+    out, res = table
+    args = ["--ours", str(out.parents[1] / "ours"), "--frames", "4", "--combos", "iml,ir,pgo", "--out", str(out.parent / "t3.json"),
+            "--refiner", str(shipped_checkpoint(DEFAULT_REFINER))]
+    keys = ("dx_cm", "dy_cm", "dpsi_deg", "ate", "detection")
+    cascade = table_iii.main([*args, "--fine-refiner", str(shipped_checkpoint(DEFAULT_FINE_REFINER))])
+    assert [r["information"] for r in cascade["rows"]] == ["noise_model", "paper"]
+    assert json.loads((out.parent / "t3.json").read_text()) == json.loads(json.dumps(cascade))
+    row = cascade["rows"][0]
+    assert {k: row[k] for k in keys} == {k: res["rows"]["rhaml"]["ours"][k] for k in keys}
+    assert row["detection"]["tp"] == 8  # IR ran on every frame
+    ir = [table_iii.main([*args, *more, "--combos", "iml,ir"])["rows"][0]["dx_cm"]
+          for more in (["--fine-refiner", str(shipped_checkpoint(DEFAULT_FINE_REFINER))], [])]
+    assert ir[0] != ir[1]  # the fine refiner ran in the first only
