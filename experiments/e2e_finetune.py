@@ -268,10 +268,11 @@ def run(a) -> dict:
         alone_dir = runs / "alone"
         alone_steps = a.alone_steps or max(1, int(res["e2e"]["seconds"] / a.alone_step_seconds))
         data = bop_for_alone(a.train, a.val, runs / "alone_bop")
-        res["alone"] = _paper.train("zoom", checkpoint_meta(shipped_zoom())["model_config"]["name"], data, alone_dir,
-                                    alone_steps, a.seed, "--init", str(shipped_zoom()), "--lr", str(a.lr), "--warmup",
-                                    str(a.warmup), "--batch", "32", "--w-xy", "69.4", "526", "--val-every",
-                                    str(alone_steps), "--val-batches", "2", *a.train_args)
+        start = checkpoint_meta(shipped_zoom())  # its own config and its training's loss weights
+        res["alone"] = _paper.train("zoom", start["model_config"]["name"], data, alone_dir, alone_steps, a.seed,
+                                    "--init", str(shipped_zoom()), "--lr", str(a.lr), "--warmup", str(a.warmup),
+                                    "--batch", "32", "--w-xy", *map(str, start["train_config"]["w_xy"]),
+                                    "--val-every", str(alone_steps), "--val-batches", "2", *a.train_args)
         res["alone"]["steps"] = alone_steps
         if res["alone"]["seconds"] < res["e2e"]["seconds"]:  # its wall time includes start-up: an upper bound
             print(f"warning: the alone stage trained for {res['alone']['seconds']:.0f} s, less than the end-to-end "

@@ -36,22 +36,21 @@ PAPER = {"frontnet": ((30.3, 36.7), (50.9, 75.8), (64.9, 53.2), 2.21, 0.33, 0.07
 
 
 def refiner_size() -> dict:
-    """The default IR cascade (`refine.load_stage`: DEFAULT_REFINER for `RefineConfig` n_iter
-    iterations, then DEFAULT_FINE_REFINER for fine_iter): parameters (leaves of both params pytrees)
-    and MACs per frame at batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and
-    matrix products)."""
+    """The default IR cascade as the pipeline loads it (`refine.load_stage()`: the refiner for
+    `RefineConfig` n_iter iterations, then the fine refiner for fine_iter): parameters (leaves of
+    both params pytrees) and MACs per frame at batch 1, counted as amlnet/count.py counts (the
+    jaxpr's convolutions and matrix products)."""
     import math
 
     import jax
     import jax.numpy as jnp
 
-    from rhaml_jax.amlnet import shipped_checkpoint
     from rhaml_jax.amlnet.count import jaxpr_macs
-    from rhaml_jax.refine import DEFAULT_FINE_REFINER, RefineConfig, load_refiner, net, shipped_refiner
+    from rhaml_jax.refine import load_stage, net
 
-    cfg = RefineConfig()
+    cfg, stage = load_stage()
     out = {"params": 0, "macs": 0, "networks": []}
-    for r, n in ((shipped_refiner(), cfg.n_iter), (load_refiner(shipped_checkpoint(DEFAULT_FINE_REFINER)), cfg.fine_iter)):
+    for r, n in ((stage.refiner, cfg.n_iter), (stage.fine, cfg.fine_iter)):
         n = r.cfg.n_iter if n is None else n
         x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
         macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x, r=r: net.apply(r.cfg, p, x))(r.params, x).jaxpr))
