@@ -53,6 +53,8 @@ class Args:
     zoom_mirror: bool = False
     """also run the zoom-in stage on each crop mirrored left-right and average the two answers
     (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
+    white_balance: bool = False
+    """IML sees each image grey-world balanced (`colour.grey_world`): a global tint of the light undone"""
     refiner: Path | None = None
     """refiner checkpoint folder (the ir module; default: the shipped `refine.DEFAULT_REFINER`)"""
     segmenter: Path | None = None
@@ -135,7 +137,7 @@ def _load(args: Args, modules):
     robot, path = _data_robot(args)
     check = None if args.allow_other_robot else robot
     iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror, check, str(path),
-                                         calibrated=not args.raw_flip_ranking)
+                                         calibrated=not args.raw_flip_ranking, white_balance=args.white_balance)
     refiner = refiner_params = None
     if "ir" in modules:
         from rhaml_jax import refine
@@ -164,6 +166,7 @@ def run(args: Args) -> dict:
               np.concatenate([r.data.observed for r in runs]), np.concatenate([r.data.gt for r in runs]))
     m |= {"fps": len(frames) / seconds if seconds > 0 else None, "compile_seconds": round(compile_s, 2),
           "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
+          "white_balance": args.white_balance,
           "scenes": len(runs)}
     rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
     from rhaml_jax.metrics import flipped, flips_by_view

@@ -51,6 +51,7 @@ class IMLModel:
     zoom: object | None = None  # the zoom-in stage's amlnet.Net, or None for AMLNet alone
     zoom_mirror: bool = False  # also run the zoom stage on the mirrored crop (left-right symmetric robots)
     flip_calibration: tuple[float, float] | None = None  # (a, b) of zoom.FlipCalibration; None: the raw ranking
+    white_balance: bool = False  # grey-world balance each image before the networks see it (`colour.grey_world`)
 
 
 class IMLParams(NamedTuple):
@@ -72,6 +73,10 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
 
     net = model.amlnet
     B, H, W = images.shape[:3]
+    if model.white_balance:
+        from rhaml_jax.colour import grey_world
+
+        images = grey_world(jnp.asarray(images, jnp.float32))
     K = jnp.broadcast_to(jnp.asarray(K, jnp.float32), (B, 3, 3))
     h, w = net.cfg.input_hw
     with jax.ensure_compile_time_eval():  # a constant of the model, not a traced value
@@ -139,14 +144,15 @@ DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_nocart_cpu", "zoom_fit_cpu"
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
              zoom_mirror: bool = False, robot=None, robot_source: str = "the data set",
-             calibrated: bool = True) -> tuple[IMLModel, IMLParams]:
+             calibrated: bool = True, white_balance: bool = False) -> tuple[IMLModel, IMLParams]:
     """IML from checkpoint folders. Defaults: the shipped `DEFAULT_AMLNET` and, with it, its own
     `DEFAULT_ZOOM` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
     RobotModel, from `robot_source`), networks made for another robot are refused: by the
     fingerprint each checkpoint stores (`robots.check_same_robot`) or, for a zoom stage from
     before fingerprints, by its robot length (`zoom_length_m`, 15 %). The zoom checkpoint's flip
     calibration, if it has one (`zoom.write_flip_calibration`), makes `flip_prob` a probability;
-    `calibrated=False` keeps the raw ranking (to fit a calibration)."""
+    `calibrated=False` keeps the raw ranking (to fit a calibration). `white_balance`: the
+    networks see each image grey-world balanced (`colour.grey_world`)."""
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
     from rhaml_jax.amlnet.checkpoint import checkpoint_meta, checkpoint_robot
 
@@ -192,5 +198,5 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
                 warnings.warn(f"zoom-in stage checkpoint {zoom}: its flip calibration was fitted "
                               f"{'with' if c.zoom_mirror else 'without'} --zoom-mirror; flip_prob stays the raw ranking",
                               stacklevel=2)
-    return IMLModel(net, znet, zoom_mirror, cal), IMLParams((p, s), zp)
+    return IMLModel(net, znet, zoom_mirror, cal, white_balance), IMLParams((p, s), zp)
 
