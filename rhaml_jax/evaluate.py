@@ -75,6 +75,10 @@ class Args:
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
+    redetect_threshold: float | None = None
+    """pgo (batch): a second objectness threshold under 0.5; frames scored between the two are called
+    detected where their estimate agrees with the pose graph of the confident frames
+    (`PipelineConfig.redetect_threshold`); None: off"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
     odometry (`pgo.fuse_calibrated`) and fusing again"""
@@ -147,7 +151,8 @@ def _load(args: Args, modules):
         refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
-                                  calibrate_range=not args.no_range_calibration)
+                                  calibrate_range=not args.no_range_calibration,
+                                  redetect_threshold=args.redetect_threshold)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
 
 
@@ -182,7 +187,8 @@ def run(args: Args) -> dict:
     if "ir" in modules:  # detected frames where IR's estimate stands (else it declined or did not converge)
         m["ir_applied"] = int(sum(r["ir_applied"] for r in rows if r["detected"]))
     if "pgo" in modules:
-        m |= {"pgo_mode": args.pgo_mode, "information": "paper" if args.paper_information else "noise_model",
+        m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold,
+              "information": "paper" if args.paper_information else "noise_model",
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
               "range_model": [[float(v) for v in r.result.range_model] for r in runs]}
     return {"metrics": m, "frames": rows}

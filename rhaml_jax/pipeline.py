@@ -10,7 +10,9 @@ chosen in `PipelineConfig.modules` as the paper's flexible architecture allows, 
 - `ir`: render-and-compare refinement of every detected frame (`rhaml_jax.refine`);
 - `pgo`: the robust pose graph over the detected frames with both odometries
   (`rhaml_jax.pgo.fuse`: batch, the whole sequence, as the paper evaluates; or
-  `pgo.fuse_online`: frame k fused from frames <= k only, compiled once for the length N).
+  `pgo.fuse_online`: frame k fused from frames <= k only, compiled once for the length N);
+  in batch mode optionally with a second, lower detection threshold (`redetect`: frames scored
+  just under it join the graph where they agree with the graph of the confident frames).
 
 Everything between the images and the fused poses is traced: the function jits, vmaps over
 sequences (same N), shards over devices (`shard_sequences`) and differentiates end to end
@@ -31,10 +33,11 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
-__all__ = ["MODULES", "PipelineConfig", "fuse_estimates", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
+__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "fuse_estimates", "redetect", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
            "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
+REDETECT_HEADING_DEG = 30.0  # the re-detection gate's heading tolerance, modulo 180 deg (the graph tries both)
 
 
 def parse_modules(text: str) -> tuple[str, ...]:
@@ -62,6 +65,12 @@ class PipelineConfig:
     # batch pgo: calibrate the observations' range error from odometry (pgo.fuse_calibrated), then
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
     calibrate_range: bool = True
+    # batch pgo: a second, lower objectness threshold. Frames scored in [redetect_threshold,
+    # DETECTION_THRESHOLD) are called detected where their estimate agrees with the pose graph
+    # fused from the confident frames (position within redetect_gate of its range, heading within
+    # REDETECT_HEADING_DEG of it or its opposite), and the graph is fused again with them. None: off.
+    redetect_threshold: float | None = None
+    redetect_gate: float = 0.1
 
     def __post_init__(self):
         parse_modules(",".join(self.modules))
@@ -69,6 +78,14 @@ class PipelineConfig:
             raise RhamlError(f"pgo_mode {self.pgo_mode!r}: expected 'batch' or 'online'")
         if self.chunk < 1:
             raise RhamlError(f"chunk {self.chunk}: must be positive")
+        if self.redetect_threshold is not None:
+            if not 0.0 < self.redetect_threshold < DETECTION_THRESHOLD:
+                raise RhamlError(f"redetect_threshold {self.redetect_threshold}: must lie in (0, {DETECTION_THRESHOLD}), "
+                                 "under the detection threshold")
+            if "pgo" not in self.modules or self.pgo_mode != "batch":
+                raise RhamlError("redetect_threshold: needs the pgo module in batch mode (the fused graph is the gate)")
+            if not self.redetect_gate > 0.0:
+                raise RhamlError(f"redetect_gate {self.redetect_gate}: must be positive (a fraction of the range)")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -99,7 +116,7 @@ class Sequence(NamedTuple):
 class PipelineResult(NamedTuple):
     iml: Estimate  # (N,) IML's estimates
     ir: Estimate | None  # (N,) after refinement (None without "ir")
-    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD
+    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD (or re-detected: PipelineConfig.redetect_threshold)
     xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
     fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
     range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)
@@ -121,15 +138,43 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
 
     est = _chunked(one, (seq.images, seq.K), cfg.chunk)
     detected = seq.valid & (est.o >= DETECTION_THRESHOLD)
+    low = cfg.redetect_threshold
+    candidates = detected if low is None else seq.valid & (est.o >= low)
     current, ir = est, None
     if "ir" in cfg.modules:
-        ir = _refine(model, params, seq, est, detected)
+        ir = _refine(model, params, seq, est, candidates)
         current = ir
     xypsi, fusion, c = current.xypsi, None, jnp.zeros((2,), current.xypsi.dtype)
     if "pgo" in cfg.modules:
-        fusion, c = fuse_estimates(cfg, current, detected, seq.odom_a, seq.odom_b, seq.a_observes)
+        if low is None:
+            fusion, c = fuse_estimates(cfg, current, detected, seq.odom_a, seq.odom_b, seq.a_observes)
+        else:
+            fusion, c, detected = redetect(cfg, current, detected, candidates, seq.odom_a, seq.odom_b, seq.a_observes)
         xypsi = fusion.relative
     return PipelineResult(est, ir, detected, xypsi, fusion, c)
+
+
+def redetect(cfg: PipelineConfig, est: Estimate, detected, candidates, odom_a, odom_b, a_observes):
+    """The two-threshold detection (`PipelineConfig.redetect_threshold`): the graph fused from the
+    `detected` frames, the `candidates` (N,) among the rest called detected where their estimate
+    agrees with it (`cfg.redetect_gate`, REDETECT_HEADING_DEG), and the graph fused again ->
+    (pgo.FusionResult, range model c (2,), detected (N,))."""
+    fusion, _ = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
+    # guard: without a confident rendezvous fuse_estimates answers the estimates themselves, which
+    # every candidate would agree with: then nothing is re-detected
+    anchored = jnp.any(fusion.inlier & detected)
+    detected = detected | (anchored & candidates & _agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
+    fusion, c = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
+    return fusion, c, detected
+
+
+def _agrees(xypsi, fused, gate: float):
+    """(N,) bool: estimates (N, 3) within `gate` of the fused range of the fused ones (N, 3), their
+    headings within REDETECT_HEADING_DEG of the fused heading or its opposite."""
+    near = jnp.linalg.norm(xypsi[:, :2] - fused[:, :2], axis=-1) <= gate * jnp.linalg.norm(fused[:, :2], axis=-1)
+    d = jnp.abs(jnp.arctan2(jnp.sin(xypsi[:, 2] - fused[:, 2]), jnp.cos(xypsi[:, 2] - fused[:, 2])))
+    aligned = jnp.minimum(d, jnp.pi - d) <= jnp.deg2rad(REDETECT_HEADING_DEG)
+    return near & aligned
 
 
 def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
@@ -158,7 +203,7 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
     """IR on every frame (`refine.refine`: the learned iterations, re-rendering between them);
-    frames not detected, or where the refiner declines (the estimate behind the camera or
+    frames not detected (nor candidates for re-detection), or where the refiner declines (the estimate behind the camera or
     outside the image) or does not converge (`RefineConfig.max_final_step`), keep IML's estimate."""
     if model.refiner is None or params.refiner is None:
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")

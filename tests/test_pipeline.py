@@ -224,3 +224,42 @@ def test_frames_where_ir_does_not_converge_keep_imls_estimate(stage):
     free, strict = runs[None], runs[1e-9]
     assert not np.allclose(free.ir.xypsi, free.iml.xypsi)  # refined where nothing is checked
     np.testing.assert_array_equal(np.asarray(strict.ir.xypsi), np.asarray(strict.iml.xypsi))
+
+
+def test_redetect_adds_the_low_frames_that_agree_with_the_graph():
+    n = 40
+    t = np.linspace(0, 2 * np.pi, n)
+    odom_b = np.stack([3 + np.cos(t), np.sin(t), t], 1).astype(np.float32)  # odom_a fixed at 0: truth = odom_b
+    odom_a = np.zeros((n, 3), np.float32)
+    noise = np.random.default_rng(0).normal(0, [0.02, 0.02, 0.01], (n, 3)).astype(np.float32)
+    xypsi = odom_b + noise
+    xypsi[30:, 0] += 1.0  # frames 30-39: a metre off in x (about 25 % of the range)
+    est = iml.Estimate(jnp.asarray(xypsi), jnp.ones(n), jnp.full(n, 0.1), jnp.zeros((n, 2)))
+    cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=0.2)
+    confident = jnp.asarray(np.arange(n) < 20)
+    fusion, c, detected = jax.jit(pipeline.redetect, static_argnums=0)(
+        cfg, est, confident, jnp.ones(n, bool), odom_a, odom_b, jnp.ones(n, bool))
+    np.testing.assert_array_equal(np.asarray(detected), np.arange(n) < 30)
+    assert float(jnp.max(jnp.abs(fusion.relative[:, :2] - odom_b[:, :2]))) < 0.05
+    # no confident frame: no graph to agree with, nothing is re-detected
+    _, _, none = pipeline.redetect(cfg, est, jnp.zeros(n, bool), jnp.ones(n, bool), odom_a, odom_b, jnp.ones(n, bool))
+    assert not bool(none.any())
+
+
+def test_redetect_config_errors():
+    for kw, msg in [(dict(redetect_threshold=0.5), "under the detection threshold"),
+                    (dict(redetect_threshold=0.2, modules=("iml",)), "batch mode"),
+                    (dict(redetect_threshold=0.2, pgo_mode="online"), "batch mode"),
+                    (dict(redetect_threshold=0.2, redetect_gate=0.0), "redetect_gate")]:
+        with pytest.raises(RhamlError, match=msg):
+            pipeline.PipelineConfig(**({"modules": ("iml", "pgo")} | kw))
+
+
+def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage):
+    m, p = stage
+    seq = _sequence()
+    base = pipeline.run_jit(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"))),
+                            pipeline.PipelineParams(p), seq)
+    cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=0.05)
+    res = pipeline.run_jit(pipeline.PipelineModel(m, cfg), pipeline.PipelineParams(p), seq)
+    assert bool(jnp.all(res.detected >= base.detected)) and bool(jnp.all(jnp.isfinite(res.xypsi)))
