@@ -10,6 +10,7 @@
 #   LABEL=fit NETS=RUN/networks bash experiments/validate_networks.sh      # NETS/{amlnet,zoom,refiner[,fine]}
 #   LABEL=default bash experiments/validate_networks.sh                    # the shipped defaults
 #   LABEL=wb EXTRA="--white-balance" bash experiments/validate_networks.sh # more evaluate options
+#   LABEL=redet EXTRA_PGO="--redetect-threshold 0.2" bash ...              # options of the pose-graph runs only
 set -e
 : "${LABEL:?}" "${DATA:=/work/data}" "${EV:=/work/runs/validation}"
 PY=${PY:-python}
@@ -20,7 +21,8 @@ NETARGS=()
 json() { echo "$EV/${LABEL}_$(echo "$1" | tr / _).json"; }  # set -> its evaluate output (kept: a rerun skips it)
 ev() {  # set modules
   j=$(json "$1")
-  [ -f "$j" ] || $PY -m rhaml_jax.evaluate --data "$DATA/$1" --modules "$2" --zoom-mirror "${NETARGS[@]}" $EXTRA --json "$j" > "${j%.json}.log"
+  pgo=(); [[ "$2" == *pgo* ]] && pgo=($EXTRA_PGO)
+  [ -f "$j" ] || $PY -m rhaml_jax.evaluate --data "$DATA/$1" --modules "$2" --zoom-mirror "${NETARGS[@]}" $EXTRA "${pgo[@]}" --json "$j" > "${j%.json}.log"
 }
 OURS="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine"
 OOD="val_ood/circle val_ood/sine val_ood_s2/circle val_ood_s2/sine"

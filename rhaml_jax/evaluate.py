@@ -75,9 +75,9 @@ class Args:
     """pgo: fuse the whole sequence (batch, as the paper evaluates) or each frame from the frames before it (online)"""
     paper_information: bool = False
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
-    redetect_threshold: float | None = None
-    """pgo (batch): a second objectness threshold under 0.5; frames scored between the two are called
-    detected where their estimate agrees with the pose graph of the confident frames
+    redetect_threshold: float | None = 0.2
+    """pgo (batch): a second objectness threshold under 0.5; frames scored between the two are refined
+    and called detected where their estimate agrees with the pose graph of the confident frames
     (`PipelineConfig.redetect_threshold`); None: off"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from

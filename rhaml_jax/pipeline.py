@@ -66,10 +66,11 @@ class PipelineConfig:
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
     calibrate_range: bool = True
     # batch pgo: a second, lower objectness threshold. Frames scored in [redetect_threshold,
-    # DETECTION_THRESHOLD) are called detected where their estimate agrees with the pose graph
-    # fused from the confident frames (position within redetect_gate of its range, heading within
-    # REDETECT_HEADING_DEG of it or its opposite), and the graph is fused again with them. None: off.
-    redetect_threshold: float | None = None
+    # DETECTION_THRESHOLD) are refined (ir) and called detected where their estimate agrees with
+    # the pose graph fused from the confident frames (position within redetect_gate of its range,
+    # heading within REDETECT_HEADING_DEG of it or its opposite); the graph is then fused again
+    # with them. None: off; without batch pgo there is no graph to agree with and it is unused.
+    redetect_threshold: float | None = 0.2
     redetect_gate: float = 0.1
 
     def __post_init__(self):
@@ -82,8 +83,6 @@ class PipelineConfig:
             if not 0.0 < self.redetect_threshold < DETECTION_THRESHOLD:
                 raise RhamlError(f"redetect_threshold {self.redetect_threshold}: must lie in (0, {DETECTION_THRESHOLD}), "
                                  "under the detection threshold")
-            if "pgo" not in self.modules or self.pgo_mode != "batch":
-                raise RhamlError("redetect_threshold: needs the pgo module in batch mode (the fused graph is the gate)")
             if not self.redetect_gate > 0.0:
                 raise RhamlError(f"redetect_gate {self.redetect_gate}: must be positive (a fraction of the range)")
 
@@ -138,7 +137,7 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
 
     est = _chunked(one, (seq.images, seq.K), cfg.chunk)
     detected = seq.valid & (est.o >= DETECTION_THRESHOLD)
-    low = cfg.redetect_threshold
+    low = cfg.redetect_threshold if "pgo" in cfg.modules and cfg.pgo_mode == "batch" else None
     candidates = detected if low is None else seq.valid & (est.o >= low)
     current, ir = est, None
     if "ir" in cfg.modules:

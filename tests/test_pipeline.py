@@ -248,17 +248,17 @@ def test_redetect_adds_the_low_frames_that_agree_with_the_graph():
 
 def test_redetect_config_errors():
     for kw, msg in [(dict(redetect_threshold=0.5), "under the detection threshold"),
-                    (dict(redetect_threshold=0.2, modules=("iml",)), "batch mode"),
-                    (dict(redetect_threshold=0.2, pgo_mode="online"), "batch mode"),
-                    (dict(redetect_threshold=0.2, redetect_gate=0.0), "redetect_gate")]:
+                    (dict(redetect_threshold=0.0), "under the detection threshold"),
+                    (dict(redetect_gate=0.0), "redetect_gate")]:
         with pytest.raises(RhamlError, match=msg):
             pipeline.PipelineConfig(**({"modules": ("iml", "pgo")} | kw))
+    pipeline.PipelineConfig(modules=("iml",)), pipeline.PipelineConfig(pgo_mode="online")  # the default: unused there
 
 
 def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage):
     m, p = stage
     seq = _sequence()
-    base = pipeline.run_jit(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"))),
+    base = pipeline.run_jit(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=None)),
                             pipeline.PipelineParams(p), seq)
     cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=0.05)
     res = pipeline.run_jit(pipeline.PipelineModel(m, cfg), pipeline.PipelineParams(p), seq)
