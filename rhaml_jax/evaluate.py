@@ -53,6 +53,9 @@ class Args:
     zoom_mirror: bool = False
     """also run the zoom-in stage on each crop mirrored left-right and average the two answers
     (`zoom.mirror_average`); only for a left-right symmetric robot, as the built-in one is"""
+    amlnet_mirror: bool = False
+    """also run a heatmap AMLNet on each image mirrored left-right and average the two maps
+    (`iml.mirror_heatmap`); only for a left-right symmetric robot, as the built-in one is"""
     white_balance: bool = False
     """IML sees each image grey-world balanced (`colour.grey_world`): a global tint of the light undone"""
     refiner: Path | None = None
@@ -128,10 +131,10 @@ def _data_robot(args: Args):
               "(its size, its symmetry for --zoom-mirror)", file=sys.stderr)
         return None, path
     model = load_bop_model(args.data)
-    if args.zoom_mirror:
+    if args.zoom_mirror or args.amlnet_mirror:
         from rhaml_jax.iml import check_mirror_symmetric
 
-        check_mirror_symmetric(model, path)
+        check_mirror_symmetric(model, path, "--zoom-mirror" if args.zoom_mirror else "--amlnet-mirror")
     return model, path
 
 
@@ -141,7 +144,8 @@ def _load(args: Args, modules):
     robot, path = _data_robot(args)
     check = None if args.allow_other_robot else robot
     iml_model, iml_params = iml.load_iml(args.amlnet, args.zoom, args.no_zoom, args.zoom_mirror, check, str(path),
-                                         calibrated=not args.raw_flip_ranking, white_balance=args.white_balance)
+                                         calibrated=not args.raw_flip_ranking, white_balance=args.white_balance,
+                                         amlnet_mirror=args.amlnet_mirror)
     refiner = refiner_params = None
     if "ir" in modules:
         from rhaml_jax import refine
@@ -171,7 +175,7 @@ def run(args: Args) -> dict:
               np.concatenate([r.data.observed for r in runs]), np.concatenate([r.data.gt for r in runs]))
     m |= {"fps": len(frames) / seconds if seconds > 0 else None, "compile_seconds": round(compile_s, 2),
           "modules": list(modules), "zoom": model.iml.zoom is not None, "zoom_mirror": args.zoom_mirror,
-          "white_balance": args.white_balance,
+          "white_balance": args.white_balance, "amlnet_mirror": args.amlnet_mirror,
           "scenes": len(runs)}
     rows = [row for r in runs for row in frame_rows(r, "pgo" in modules)]
     from rhaml_jax.metrics import flipped, flips_by_view

@@ -30,7 +30,7 @@ from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.errors import RhamlError
 
 __all__ = ["DEFAULT_AMLNET", "DEFAULT_ZOOM", "Estimate", "IMLModel", "IMLParams", "load_iml", "localize", "localize_jit",
-           "check_mirror_symmetric"]
+           "check_mirror_symmetric", "mirror_heatmap"]
 
 
 class Estimate(NamedTuple):
@@ -52,6 +52,7 @@ class IMLModel:
     zoom_mirror: bool = False  # also run the zoom stage on the mirrored crop (left-right symmetric robots)
     flip_calibration: tuple[float, float] | None = None  # (a, b) of zoom.FlipCalibration; None: the raw ranking
     white_balance: bool = False  # grey-world balance each image before the networks see it (`colour.grey_world`)
+    amlnet_mirror: bool = False  # a heatmap AMLNet also run on the mirrored image, the two maps averaged (`mirror_heatmap`)
 
 
 class IMLParams(NamedTuple):
@@ -84,6 +85,8 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
     boxes = jax.vmap(lambda k: crop.network_box(k, (W, H), net_K, (w, h)))(K)
     x = _as_8bit(jax.vmap(lambda im, b: crop.resample(im, b, w, h))(images, boxes)) / 255.0
     out = net.apply(*params.amlnet, x)
+    if model.amlnet_mirror:  # the flip test-time augmentation of CenterNet: one map from both views
+        out = 0.5 * (out + mirror_heatmap(net.apply(*params.amlnet, x[:, :, ::-1])))
     d = decode(out, net.cfg.angle_head)
     xypsi = jnp.stack([d["x"], d["y"], d["psi"]], -1)
     flip = jnp.full((B,), 0.5, xypsi.dtype)  # AMLNet's own heading at CPU size is a guess (README)
@@ -113,20 +116,31 @@ def localize(model: IMLModel, params: IMLParams, images, K) -> Estimate:
 localize_jit = jax.jit(localize, static_argnums=0)
 
 
+def mirror_heatmap(out):
+    """(B, Gh, Gw, 6) dense AMLNet head (`amlnet.heatmap`: logit, du, dv, log range, cos, sin of
+    psi - bearing) of a left-right mirrored image -> the map of the image itself, for a left-right
+    symmetric robot: columns reversed, the in-cell offset du -> 1 - du, the heading relative to
+    the ray negated. (The pixel mirror is about the image's centre column, the camera's principal
+    point 0.25 px beside it at 320 px: a bearing offset of 0.07 deg in the average.)"""
+    m = out[:, :, ::-1]
+    return jnp.stack([m[..., 0], 1.0 - m[..., 1], m[..., 2], m[..., 3], m[..., 4], -m[..., 5]], -1)
+
+
 MAX_MIRROR_SHAPE = 0.02  # of the robot's length
 MAX_MIRROR_COLOUR = 0.05  # of its surface
 
 
-def check_mirror_symmetric(model, model_path) -> None:
-    """Mirroring the zoom crop assumes a left-right symmetric robot: refuses a RobotModel (read
-    from `model_path`) that is not (RobotModel.mirror_asymmetry)."""
+def check_mirror_symmetric(model, model_path, flag: str = "--zoom-mirror") -> None:
+    """Mirroring the zoom crop (or the image, `flag` --amlnet-mirror) assumes a left-right
+    symmetric robot: refuses a RobotModel (read from `model_path`) that is not
+    (RobotModel.mirror_asymmetry)."""
     shape, colour = model.mirror_asymmetry()
     length = float(model.extents.max())
     if shape > MAX_MIRROR_SHAPE * length or colour > MAX_MIRROR_COLOUR:
-        raise RhamlError(f"--zoom-mirror: the robot model {model_path} is not left-right symmetric (its mirror image is "
+        raise RhamlError(f"{flag}: the robot model {model_path} is not left-right symmetric (its mirror image is "
                          f"{100 * shape:.1f} cm off, {100 * colour:.0f} % of its surface another colour; limits "
                          f"{100 * MAX_MIRROR_SHAPE:.0f} % of its {100 * length:.0f} cm length and "
-                         f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored crops would show another robot")
+                         f"{100 * MAX_MIRROR_COLOUR:.0f} %): mirrored images would show another robot")
 
 
 # The default networks (shipped in rhaml_jax/checkpoints), chosen on the validation looks (ours,
@@ -144,7 +158,8 @@ DEFAULT_AMLNET, DEFAULT_ZOOM = "heat_nocart_cpu", "zoom_fit_cpu"
 
 def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, no_zoom: bool = False,
              zoom_mirror: bool = False, robot=None, robot_source: str = "the data set",
-             calibrated: bool = True, white_balance: bool = False) -> tuple[IMLModel, IMLParams]:
+             calibrated: bool = True, white_balance: bool = False,
+             amlnet_mirror: bool = False) -> tuple[IMLModel, IMLParams]:
     """IML from checkpoint folders. Defaults: the shipped `DEFAULT_AMLNET` and, with it, its own
     `DEFAULT_ZOOM` (a user's `amlnet` gets no zoom stage unless `zoom` is given). With `robot` (a
     RobotModel, from `robot_source`), networks made for another robot are refused: by the
@@ -152,7 +167,8 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
     before fingerprints, by its robot length (`zoom_length_m`, 15 %). The zoom checkpoint's flip
     calibration, if it has one (`zoom.write_flip_calibration`), makes `flip_prob` a probability;
     `calibrated=False` keeps the raw ranking (to fit a calibration). `white_balance`: the
-    networks see each image grey-world balanced (`colour.grey_world`)."""
+    networks see each image grey-world balanced (`colour.grey_world`). `amlnet_mirror`: a heatmap
+    AMLNet's map averaged with its map of the mirrored image (a left-right symmetric robot)."""
     from rhaml_jax.amlnet import load_model, shipped_checkpoint
     from rhaml_jax.amlnet.checkpoint import checkpoint_meta, checkpoint_robot
 
@@ -160,6 +176,9 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
     net, p, s = load_model(amlnet_dir)
     if getattr(net.cfg, "task", "localize") != "localize":
         raise RhamlError(f"--amlnet {amlnet}: holds a zoom-in stage ({net.cfg.name}), not AMLNet")
+    if amlnet_mirror and getattr(net.cfg, "head", "global") != "heatmap":
+        raise RhamlError(f"--amlnet-mirror: AMLNet {amlnet_dir} ({net.cfg.name}) has a {net.cfg.head} head; only a "
+                         "heatmap head's map can be mirrored back")
     if zoom is None and amlnet is None and not no_zoom:
         zoom = shipped_checkpoint(DEFAULT_ZOOM)
     znet, zp = None, None
@@ -198,5 +217,5 @@ def load_iml(amlnet: str | Path | None = None, zoom: str | Path | None = None, n
                 warnings.warn(f"zoom-in stage checkpoint {zoom}: its flip calibration was fitted "
                               f"{'with' if c.zoom_mirror else 'without'} --zoom-mirror; flip_prob stays the raw ranking",
                               stacklevel=2)
-    return IMLModel(net, znet, zoom_mirror, cal, white_balance), IMLParams((p, s), zp)
+    return IMLModel(net, znet, zoom_mirror, cal, white_balance, amlnet_mirror), IMLParams((p, s), zp)
 

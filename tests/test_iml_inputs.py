@@ -1,5 +1,6 @@
-"""The grey-world white balance: a global tint undone up to brightness, a neutral image kept,
-gains bounded, gradients finite on a black image, and IML's switch wired through."""
+"""IML's input-side options: the grey-world white balance (a global tint undone up to
+brightness, a neutral image kept, gains bounded, gradients finite on a black image, the switch
+wired through) and the mirrored AMLNet map (decodes to the mirrored pose, averages both views)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,14 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rhaml_jax import iml
 from rhaml_jax.colour import MAX_GAIN, grey_world, grey_world_gains
+from rhaml_jax.errors import RhamlError
+from tests.conftest import random_checkpoint
 
 _LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
@@ -66,3 +70,44 @@ def test_iml_switch_balances_the_images_the_networks_see():
     c = iml.localize_jit(plain, params, img * tint, K).xypsi
     np.testing.assert_allclose(a, b, atol=1e-5)
     assert not np.allclose(a, c, atol=1e-5)  # the switch changes what the network sees
+
+
+def _peak_map(j, i, du, dv, log_r, rel, gh=4, gw=6):
+    out = np.zeros((1, gh, gw, 6), np.float32)
+    out[..., 0] = -5.0
+    out[0, i, j] = [3.0, du, dv, log_r, np.cos(rel), np.sin(rel)]
+    return jnp.asarray(out)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 5), st.integers(0, 3), st.floats(0.05, 0.95), st.floats(-0.5, 0.5), st.floats(-3.0, 3.0))
+def test_mirrored_heatmap_decodes_to_the_mirrored_pose(j, i, du, log_r, rel):
+    from rhaml_jax.amlnet import decode
+
+    m = _peak_map(j, i, du, 0.5, log_r, rel)
+    np.testing.assert_allclose(iml.mirror_heatmap(iml.mirror_heatmap(m)), m, atol=1e-6)  # an involution
+    a, b = decode(m), decode(iml.mirror_heatmap(m))
+    r = float(np.exp(log_r))
+    np.testing.assert_allclose(b["x"], a["x"], atol=3e-3 * r)  # the principal point sits beside the centre column:
+    np.testing.assert_allclose(b["y"], -a["y"], atol=3e-3 * r)  # the two views 0.0025 rad apart
+    d = np.angle(np.exp(1j * (np.asarray(b["psi"]) + np.asarray(a["psi"]))))  # psi -> -psi
+    assert abs(float(d[0])) < 4e-3 and float(b["o"][0]) == float(a["o"][0])
+
+
+def test_amlnet_mirror_averages_both_views_and_needs_a_heatmap_head(tmp_path):
+    from rhaml_jax.amlnet import build, get_config
+
+    net = build(get_config("tiny_heat"), jax.random.key(3))
+    loud = jax.tree_util.tree_map_with_path(  # head weights x 300: a random map with distinct peaks
+        lambda p, v: v * 300.0 if jax.tree_util.keystr(p).startswith("['head']") else v, net.params)
+    params = iml.IMLParams((loud, net.batch_stats), None)
+    img = _scene(4, 64, 96)
+    K = iml.DEFAULT_CAMERA.resized(96, 64).K
+    both = iml.localize_jit(iml.IMLModel(net, amlnet_mirror=True), params, img, K)
+    one = iml.localize_jit(iml.IMLModel(net), params, img, K)
+    mirrored = iml.localize_jit(iml.IMLModel(net, amlnet_mirror=True), params, img[:, :, ::-1].copy(), K)
+    assert not np.allclose(both.o, one.o)
+    # the averaged map of the mirrored image is the mirror of the averaged map: the same o
+    np.testing.assert_allclose(mirrored.o, both.o, rtol=1e-4)
+    with pytest.raises(RhamlError, match="heatmap head"):
+        iml.load_iml(random_checkpoint(tmp_path / "micro", get_config("micro")), amlnet_mirror=True)
