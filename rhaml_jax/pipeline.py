@@ -33,8 +33,8 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
-__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "fuse_estimates", "redetect", "PipelineModel", "PipelineParams", "PipelineResult", "Sequence",
-           "parse_modules", "run", "run_jit", "shard_sequences"]
+__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "fuse_estimates", "redetect", "PipelineModel",
+           "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
 REDETECT_HEADING_DEG = 30.0  # the re-detection gate's heading tolerance, modulo 180 deg (the graph tries both)
@@ -115,7 +115,7 @@ class Sequence(NamedTuple):
 class PipelineResult(NamedTuple):
     iml: Estimate  # (N,) IML's estimates
     ir: Estimate | None  # (N,) after refinement (None without "ir")
-    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD (or re-detected: PipelineConfig.redetect_threshold)
+    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD, or re-detected (PipelineConfig.redetect_threshold)
     xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
     fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
     range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)
@@ -202,8 +202,9 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
     """IR on every frame (`refine.refine`: the learned iterations, re-rendering between them);
-    frames not detected (nor candidates for re-detection), or where the refiner declines (the estimate behind the camera or
-    outside the image) or does not converge (`RefineConfig.max_final_step`), keep IML's estimate."""
+    frames not `detected` (here: the candidates for re-detection too), or where the refiner declines
+    (the estimate behind the camera or outside the image) or does not converge
+    (`RefineConfig.max_final_step`), keep IML's estimate."""
     if model.refiner is None or params.refiner is None:
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
     from rhaml_jax import refine
