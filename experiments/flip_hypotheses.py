@@ -48,8 +48,8 @@ def run_both(cfg, p, images, K, starts, batch: int = 16):
 
 
 def last_step(iterates, n_iter: int) -> np.ndarray:
-    r = np.hypot(iterates[:, :, 0], iterates[:, :, 1])
-    return np.abs(np.log(r[:, n_iter] / r[:, n_iter - 1]))
+    """(N,) the convergence check's figure of each frame's iterates (N, rows, 3): the last coarse step."""
+    return np.asarray(jax.vmap(refine._final_step)(iterates[:, n_iter - 1], iterates[:, n_iter]))
 
 
 def main() -> None:

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-from rhaml_jax.planar import wrap_angle
+from rhaml_jax.pipeline import agrees
 
 
 def main() -> None:
@@ -37,17 +36,13 @@ def main() -> None:
         if seq.endswith("background") or seq.endswith("random"):  # no pose graph there to gate by
             continue
         d = json.loads(path.read_text())
-        n = 0
-        for x in d["frames"]:
-            if x["detected"] or x["o"] < a.low:
-                continue
-            e, f = np.asarray(x["iml_est"]), np.asarray(x["est"])
-            near = np.hypot(*(e[:2] - f[:2])) <= a.gate * np.hypot(*f[:2])
-            dpsi = abs(wrap_angle(e[2] - f[2]))
-            aligned = min(dpsi, math.pi - dpsi) <= math.radians(a.heading)
-            if near and aligned:
-                x["detected"] = True
-                n += 1
+        rows = [x for x in d["frames"] if not x["detected"] and x["o"] >= a.low]
+        if rows:  # the pipeline's own gate (pipeline.agrees), on IML's estimates against the stored answer
+            ok = np.asarray(agrees(np.array([x["iml_est"] for x in rows]), np.array([x["est"] for x in rows]), a.gate,
+                                   a.heading))
+            for x, k in zip(rows, ok):
+                x["detected"] = bool(k)
+        n = int(sum(x["detected"] for x in rows))
         (a.out / f"{label}_{seq}.json").write_text(json.dumps(d))
         print(f"{label} {seq}: {n} frames called detected")
 

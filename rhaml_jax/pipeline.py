@@ -32,8 +32,9 @@ from rhaml_jax import pgo
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
+from rhaml_jax.planar import wrap_angle
 
-__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "fuse_estimates", "redetect", "PipelineModel",
+__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
            "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
@@ -162,17 +163,17 @@ def redetect(cfg: PipelineConfig, est: Estimate, detected, candidates, odom_a, o
     # guard: without a confident rendezvous fuse_estimates answers the estimates themselves, which
     # every candidate would agree with: then nothing is re-detected
     anchored = jnp.any(fusion.inlier & detected)
-    detected = detected | (anchored & candidates & _agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
+    detected = detected | (anchored & candidates & agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
     fusion, c = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
     return fusion, c, detected
 
 
-def _agrees(xypsi, fused, gate: float):
-    """(N,) bool: estimates (N, 3) within `gate` of the fused range of the fused ones (N, 3), their
-    headings within REDETECT_HEADING_DEG of the fused heading or its opposite."""
+def agrees(xypsi, fused, gate: float, heading_deg: float = REDETECT_HEADING_DEG):
+    """(N,) bool, the re-detection gate: estimates (N, 3) within `gate` of the fused range of the
+    fused poses (N, 3), their headings within `heading_deg` of the fused heading or its opposite."""
     near = jnp.linalg.norm(xypsi[:, :2] - fused[:, :2], axis=-1) <= gate * jnp.linalg.norm(fused[:, :2], axis=-1)
-    d = jnp.abs(jnp.arctan2(jnp.sin(xypsi[:, 2] - fused[:, 2]), jnp.cos(xypsi[:, 2] - fused[:, 2])))
-    aligned = jnp.minimum(d, jnp.pi - d) <= jnp.deg2rad(REDETECT_HEADING_DEG)
+    d = jnp.abs(wrap_angle(xypsi[:, 2] - fused[:, 2]))
+    aligned = jnp.minimum(d, jnp.pi - d) <= jnp.deg2rad(heading_deg)
     return near & aligned
 
 
