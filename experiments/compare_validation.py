@@ -60,12 +60,13 @@ def sq_twist(est: np.ndarray, gt: np.ndarray) -> np.ndarray:
 def per_frame(path: Path, data: Path) -> dict[str, dict]:
     """Row -> {"q": {"ATE": squared twists, "position": squared position errors (m^2)} over the
     observed frames, "flips" and "detected" robots} of one run."""
-    rows = json.loads(path.read_text())["frames"]
+    run = json.loads(path.read_text())
+    rows = run["frames"]
     scene = load_scene(list(group_scenes(read_bop(data)).values())[0])
     det, obs, gt = np.array([r["detected"] for r in rows]), np.asarray(scene.observed), np.asarray(scene.gt)
-    ests = {"IML": np.array([r["iml_est"] for r in rows]), "IML+PGO": fused(rows, scene, "iml_est", det)}
+    ests = {"IML": np.array([r["iml_est"] for r in rows]), "IML+PGO": fused(rows, scene, "iml_est", det, run["metrics"])}
     if "ir_est" in rows[0]:
-        ests |= {"IML+IR": np.array([r["ir_est"] for r in rows]), "IML+IR+PGO": fused(rows, scene, "ir_est", det)}
+        ests |= {"IML+IR": np.array([r["ir_est"] for r in rows]), "IML+IR+PGO": fused(rows, scene, "ir_est", det, run["metrics"])}
     out, k = {}, det & obs
     for row, est in ests.items():
         q = {"ATE": sq_twist(est[obs], gt[obs]), "position": np.sum((est[obs, :2] - gt[obs, :2]) ** 2, axis=1)}

@@ -6,7 +6,7 @@
 Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA (or
 `--modules iml`: then the IML and IML+PGO rows only). Per set (its
 scenes pooled): IML and IML+IR from the stored `iml_est` / `ir_est`, IML+PGO and IML+IR+PGO refitted
-through the pipeline's own batch fusion (`pipeline.fuse_estimates`): mean abs
+through the pipeline's own fusion (`pipeline.fuse_estimates`, batch or online as the run's was): mean abs
 dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate` scores it), flips
 (> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
 again with a frame called detected at o >= t (the pipeline's threshold is 0.5). Also how well the
@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhaml_jax import pipeline
+from rhaml_jax import pgo, pipeline
 from rhaml_jax.data import read_bop
 from rhaml_jax.evaluate import score
 from rhaml_jax.iml import Estimate
@@ -33,18 +33,26 @@ from rhaml_jax.sequence import group_scenes, load_scene
 from rhaml_jax.zoom import calibration_metrics
 
 FUSE = jax.jit(pipeline.fuse_estimates, static_argnums=0)
-BATCH = pipeline.PipelineConfig(modules=("iml", "pgo"))  # batch fusion with range calibration, as evaluate's
 
 
-def fused(rows: list[dict], scene, key: str, detected: np.ndarray) -> np.ndarray:
-    """The pipeline's fused estimates (N, 3) of the stored `key` estimates (`pipeline.fuse_estimates`,
-    planar observations as the stored rows give them)."""
+def pgo_config(metrics: dict | None) -> pipeline.PipelineConfig:
+    """The pose graph an evaluate run used, from its stored metrics (an `--modules iml` run, or a run
+    older than these fields: evaluate's default, batch fusion with range calibration)."""
+    m = metrics or {}
+    return pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=m.get("pgo_mode", "batch"),
+                                   fusion=pgo.FusionConfig(information=m.get("information", "noise_model")),
+                                   calibrate_range=m.get("range_calibration", True))
+
+
+def fused(rows: list[dict], scene, key: str, detected: np.ndarray, metrics: dict | None = None) -> np.ndarray:
+    """The pipeline's fused estimates (N, 3) of the stored `key` estimates (`pipeline.fuse_estimates`
+    as the run's `metrics` say it fused, planar observations as the stored rows give them)."""
     seq = scene.seq
     xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
     n = len(rows)
     est = Estimate(xypsi=xypsi, o=jnp.ones(n, jnp.float32), flip_prob=flip, roll_pitch=jnp.zeros((n, 2), jnp.float32))
-    fusion, _ = FUSE(BATCH, est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
+    fusion, _ = FUSE(pgo_config(metrics), est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
     return np.asarray(fusion.relative)
 
 
@@ -72,19 +80,20 @@ def main() -> None:
         acc: dict[str, list] = {}
         flip_prob, is_flip = [], []
         for js, data in zip(rest[::2], rest[1::2]):
-            rows = json.loads(Path(js).read_text())["frames"]
+            run = json.loads(Path(js).read_text())
+            rows, metrics = run["frames"], run["metrics"]
             if "iml_est" not in rows[0]:
                 ap.error(f"{js}: no iml_est rows (run evaluate --modules iml[,ir,pgo])")
             scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])
             det, o = np.array([r["detected"] for r in rows]), np.array([r["o"] for r in rows])
             add = lambda k, est, d=det: acc.setdefault(k, []).append((est, d, scene.observed, scene.gt))  # noqa: E731
             add("IML", np.array([r["iml_est"] for r in rows]))
-            add("IML+PGO", fused(rows, scene, "iml_est", det))
+            add("IML+PGO", fused(rows, scene, "iml_est", det, metrics))
             if "ir_est" in rows[0]:  # an `evaluate --modules iml` run has IML's rows only
                 add("IML+IR", np.array([r["ir_est"] for r in rows]))
-                add("IML+IR+PGO", fused(rows, scene, "ir_est", det))
+                add("IML+IR+PGO", fused(rows, scene, "ir_est", det, metrics))
             for t in a.thresholds:
-                add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t), o >= t)
+                add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t, metrics), o >= t)
             k = det & scene.observed
             flip_prob.append(np.array([r["iml_flip_prob"] for r in rows])[k])
             is_flip.append(flipped(np.array([r["iml_est"] for r in rows])[k, 2], np.asarray(scene.gt)[k, 2]))

@@ -79,9 +79,9 @@ class Args:
     paper_information: bool = False
     """pgo: the paper's constant information (kappa = 100, eqs. 9-10) instead of the odometry noise model"""
     redetect_threshold: float | None = 0.2
-    """pgo (batch): a second objectness threshold under 0.5; frames scored between the two are refined
+    """pgo: a second objectness threshold under 0.5; frames scored between the two are refined
     and called detected where their estimate agrees with the pose graph of the confident frames
-    (`PipelineConfig.redetect_threshold`); None: off"""
+    (online: those up to the frame; `PipelineConfig.redetect_threshold`); None: off"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
     odometry (`pgo.fuse_calibrated`) and fusing again"""
@@ -193,6 +193,7 @@ def run(args: Args) -> dict:
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold,
               "information": "paper" if args.paper_information else "noise_model",
+              "range_calibration": not args.no_range_calibration,
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
               "range_model": [[float(v) for v in r.result.range_model] for r in runs]}
     return {"metrics": m, "frames": rows}

@@ -66,11 +66,12 @@ class PipelineConfig:
     # batch pgo: calibrate the observations' range error from odometry (pgo.fuse_calibrated), then
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
     calibrate_range: bool = True
-    # batch pgo: a second, lower objectness threshold. Frames scored in [redetect_threshold,
+    # pgo: a second, lower objectness threshold. Frames scored in [redetect_threshold,
     # DETECTION_THRESHOLD) are refined (ir) and called detected where their estimate agrees with
     # the pose graph fused from the confident frames (position within redetect_gate of its range,
     # heading within REDETECT_HEADING_DEG of it or its opposite); the graph is then fused again
-    # with them. None: off; without batch pgo there is no graph to agree with and it is unused.
+    # with them. Online, frame k is judged by the graph of the confident frames <= k, so the
+    # answer stays causal. None: off; without pgo there is no graph to agree with and it is unused.
     redetect_threshold: float | None = 0.2
     redetect_gate: float = 0.1
 
@@ -138,7 +139,7 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
 
     est = _chunked(one, (seq.images, seq.K), cfg.chunk)
     detected = seq.valid & (est.o >= DETECTION_THRESHOLD)
-    low = cfg.redetect_threshold if "pgo" in cfg.modules and cfg.pgo_mode == "batch" else None
+    low = cfg.redetect_threshold if "pgo" in cfg.modules else None
     candidates = detected if low is None else seq.valid & (est.o >= low)
     current, ir = est, None
     if "ir" in cfg.modules:
@@ -159,11 +160,10 @@ def redetect(cfg: PipelineConfig, est: Estimate, detected, candidates, odom_a, o
     `detected` frames, the `candidates` (N,) among the rest called detected where their estimate
     agrees with it (`cfg.redetect_gate`, REDETECT_HEADING_DEG), and the graph fused again ->
     (pgo.FusionResult, range model c (2,), detected (N,))."""
-    fusion, _ = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
-    # guard: without a confident rendezvous fuse_estimates answers the estimates themselves, which
-    # every candidate would agree with: then nothing is re-detected
-    anchored = jnp.any(fusion.inlier & detected)
-    detected = detected | (anchored & candidates & agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
+    fusion, _, trusted = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
+    # guard: where the graph has no answer (no confident rendezvous; online: none at or before
+    # the frame) a candidate is not judged (the pipeline would answer its own estimate there)
+    detected = detected | (trusted & candidates & agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
     fusion, c = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
     return fusion, c, detected
 
@@ -180,25 +180,31 @@ def agrees(xypsi, fused, gate: float, heading_deg: float = REDETECT_HEADING_DEG)
 def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
     """The pgo module on its own: per-frame estimates (N,) with both odometries (N, 3) ->
     (pgo.FusionResult, range model c (2,)); batch mode fuses, calibrates the range error
-    and fuses again (`pgo.fuse_calibrated`), online mode fuses each frame from those before it."""
+    and fuses again (`pgo.fuse_calibrated`), online mode fuses each frame from those before it.
+    Where the graph has no answer the frame keeps its stage estimate."""
+    fusion, c, trusted = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
+    return fusion._replace(relative=jnp.where(trusted[:, None], fusion.relative, est.xypsi)), c
+
+
+def _fuse(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
+    """`fuse_estimates` before it falls back: (fusion, c (2,), trusted (N,) bool, the rows where the
+    graph's answer stands)."""
     obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
     rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
     c = jnp.zeros((2,), est.xypsi.dtype)
     if cfg.pgo_mode == "online":
         fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
-        # guard: frame k keeps its stage estimate until a rendezvous at or before it, and where
-        # the one-rendezvous graph of the first rows comes out non-finite (seen on row 0 of the
+        # guard: frame k has no answer before a rendezvous at or before it, nor where the
+        # one-rendezvous graph of the first rows comes out non-finite (seen on row 0 of the
         # circle under one XLA compilation, not in another: an open numerical issue of fuse_online)
-        ok = (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1)
-        return fusion._replace(relative=jnp.where(ok[:, None], fusion.relative, est.xypsi)), c
+        return fusion, c, (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1)
     if cfg.calibrate_range:
         fusion, c = pgo.fuse_calibrated(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     else:
         fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry
-    # frames undetermined (the fusion answers NaN): keep the stage's own estimates then
-    ok = jnp.any(fusion.inlier & detected)
-    return fusion._replace(relative=jnp.where(ok, fusion.relative, est.xypsi)), c
+    # frames undetermined (the fusion answers NaN)
+    return fusion, c, jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape)
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:

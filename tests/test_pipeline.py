@@ -246,13 +246,33 @@ def test_redetect_adds_the_low_frames_that_agree_with_the_graph():
     assert not bool(none.any())
 
 
+def test_online_redetect_judges_each_frame_by_the_frames_before_it():
+    """Online, a candidate is judged by the graph of the confident frames at or before it: the good
+    frames before the first confident one stay undetected (batch, which sees the future, takes them)."""
+    n = 40
+    t = np.linspace(0, 2 * np.pi, n)
+    odom_b = np.stack([3 + np.cos(t), np.sin(t), t], 1).astype(np.float32)
+    odom_a = np.zeros((n, 3), np.float32)
+    xypsi = odom_b + np.random.default_rng(1).normal(0, [0.02, 0.02, 0.01], (n, 3)).astype(np.float32)
+    xypsi[30:, 0] += 1.0  # frames 30-39: a metre off in x
+    est = iml.Estimate(jnp.asarray(xypsi), jnp.ones(n), jnp.full(n, 0.1), jnp.zeros((n, 2)))
+    confident = jnp.asarray((np.arange(n) >= 10) & (np.arange(n) < 20))
+    k = np.arange(n)
+    for mode, expect in (("online", (k >= 10) & (k < 30)), ("batch", k < 30)):
+        cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode)
+        fusion, _, detected = jax.jit(pipeline.redetect, static_argnums=0)(
+            cfg, est, confident, jnp.ones(n, bool), odom_a, odom_b, jnp.ones(n, bool))
+        np.testing.assert_array_equal(np.asarray(detected), expect, err_msg=mode)
+        assert bool(jnp.all(jnp.isfinite(fusion.relative))), mode
+
+
 def test_redetect_config_errors():
     for kw, msg in [(dict(redetect_threshold=0.5), "under the detection threshold"),
                     (dict(redetect_threshold=0.0), "under the detection threshold"),
                     (dict(redetect_gate=0.0), "redetect_gate")]:
         with pytest.raises(RhamlError, match=msg):
             pipeline.PipelineConfig(**({"modules": ("iml", "pgo")} | kw))
-    pipeline.PipelineConfig(modules=("iml",)), pipeline.PipelineConfig(pgo_mode="online")  # the default: unused there
+    pipeline.PipelineConfig(modules=("iml",))  # the default: unused without pgo
 
 
 def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage):
