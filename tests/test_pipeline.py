@@ -275,11 +275,12 @@ def test_redetect_config_errors():
     pipeline.PipelineConfig(modules=("iml",))  # the default: unused without pgo
 
 
-def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage):
+@pytest.mark.parametrize("mode", ["batch", "online"])
+def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage, mode):
     m, p = stage
     seq = _sequence()
-    base = pipeline.run_jit(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=None)),
-                            pipeline.PipelineParams(p), seq)
-    cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=0.05)
+    off = pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode, redetect_threshold=None)
+    base = pipeline.run_jit(pipeline.PipelineModel(m, off), pipeline.PipelineParams(p), seq)
+    cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode, redetect_threshold=0.05)
     res = pipeline.run_jit(pipeline.PipelineModel(m, cfg), pipeline.PipelineParams(p), seq)
     assert bool(jnp.all(res.detected >= base.detected)) and bool(jnp.all(jnp.isfinite(res.xypsi)))
