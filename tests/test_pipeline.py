@@ -226,15 +226,20 @@ def test_frames_where_ir_does_not_converge_keep_imls_estimate(stage):
     np.testing.assert_array_equal(np.asarray(strict.ir.xypsi), np.asarray(strict.iml.xypsi))
 
 
+def _redetect_case(seed: int, n: int = 40):
+    """A robot circling 3 m ahead of a still observer: estimates (n,) a few cm off, frames 30-39 a
+    metre off in x (about 25 % of the range), and both odometries (odom_a fixed at 0: truth = odom_b)."""
+    t = np.linspace(0, 2 * np.pi, n)
+    odom_b = np.stack([3 + np.cos(t), np.sin(t), t], 1).astype(np.float32)
+    odom_a = np.zeros((n, 3), np.float32)
+    xypsi = odom_b + np.random.default_rng(seed).normal(0, [0.02, 0.02, 0.01], (n, 3)).astype(np.float32)
+    xypsi[30:, 0] += 1.0
+    return iml.Estimate(jnp.asarray(xypsi), jnp.ones(n), jnp.full(n, 0.1), jnp.zeros((n, 2))), odom_a, odom_b
+
+
 def test_redetect_adds_the_low_frames_that_agree_with_the_graph():
     n = 40
-    t = np.linspace(0, 2 * np.pi, n)
-    odom_b = np.stack([3 + np.cos(t), np.sin(t), t], 1).astype(np.float32)  # odom_a fixed at 0: truth = odom_b
-    odom_a = np.zeros((n, 3), np.float32)
-    noise = np.random.default_rng(0).normal(0, [0.02, 0.02, 0.01], (n, 3)).astype(np.float32)
-    xypsi = odom_b + noise
-    xypsi[30:, 0] += 1.0  # frames 30-39: a metre off in x (about 25 % of the range)
-    est = iml.Estimate(jnp.asarray(xypsi), jnp.ones(n), jnp.full(n, 0.1), jnp.zeros((n, 2)))
+    est, odom_a, odom_b = _redetect_case(0, n)
     cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), redetect_threshold=0.2)
     confident = jnp.asarray(np.arange(n) < 20)
     fusion, c, detected = jax.jit(pipeline.redetect, static_argnums=0)(
@@ -250,12 +255,7 @@ def test_online_redetect_judges_each_frame_by_the_frames_before_it():
     """Online, a candidate is judged by the graph of the confident frames at or before it: the good
     frames before the first confident one stay undetected (batch, which sees the future, takes them)."""
     n = 40
-    t = np.linspace(0, 2 * np.pi, n)
-    odom_b = np.stack([3 + np.cos(t), np.sin(t), t], 1).astype(np.float32)
-    odom_a = np.zeros((n, 3), np.float32)
-    xypsi = odom_b + np.random.default_rng(1).normal(0, [0.02, 0.02, 0.01], (n, 3)).astype(np.float32)
-    xypsi[30:, 0] += 1.0  # frames 30-39: a metre off in x
-    est = iml.Estimate(jnp.asarray(xypsi), jnp.ones(n), jnp.full(n, 0.1), jnp.zeros((n, 2)))
+    est, odom_a, odom_b = _redetect_case(1, n)
     confident = jnp.asarray((np.arange(n) >= 10) & (np.arange(n) < 20))
     k = np.arange(n)
     for mode, expect in (("online", (k >= 10) & (k < 30)), ("batch", k < 30)):
