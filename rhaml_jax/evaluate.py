@@ -81,7 +81,7 @@ class Args:
     redetect_threshold: float | None = 0.2
     """pgo: a second objectness threshold under 0.5; frames scored between the two are refined
     and called detected where their estimate agrees with the pose graph of the confident frames
-    (online: those up to the frame; `PipelineConfig.redetect_threshold`); None: off"""
+    (online: the frames before it that joined; `PipelineConfig.redetect_threshold`); None: off"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
     odometry (`pgo.fuse_calibrated`) and fusing again"""

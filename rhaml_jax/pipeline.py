@@ -11,8 +11,8 @@ chosen in `PipelineConfig.modules` as the paper's flexible architecture allows, 
 - `pgo`: the robust pose graph over the detected frames with both odometries
   (`rhaml_jax.pgo.fuse`: batch, the whole sequence, as the paper evaluates; or
   `pgo.fuse_online`: frame k fused from frames <= k only, compiled once for the length N);
-  in batch mode optionally with a second, lower detection threshold (`redetect`: frames scored
-  just under it join the graph where they agree with the graph of the confident frames).
+  with a second, lower detection threshold (`redetect`: frames scored just under it join the
+  graph where they agree with the graph of the confident frames; online, in the same pass).
 
 Everything between the images and the fused poses is traced: the function jits, vmaps over
 sequences (same N), shards over devices (`shard_sequences`) and differentiates end to end
@@ -32,7 +32,6 @@ from rhaml_jax import pgo
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
-from rhaml_jax.planar import wrap_angle
 
 __all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
            "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
@@ -70,8 +69,9 @@ class PipelineConfig:
     # DETECTION_THRESHOLD) are refined (ir) and called detected where their estimate agrees with
     # the pose graph fused from the confident frames (position within redetect_gate of its range,
     # heading within REDETECT_HEADING_DEG of it or its opposite); the graph is then fused again
-    # with them. Online, frame k is judged by the graph of the confident frames <= k, so the
-    # answer stays causal. None: off; without pgo there is no graph to agree with and it is unused.
+    # with them. Online, in one pass, frame k is judged by the graph of the frames before it that
+    # joined (confident or re-detected), so the answer stays causal. None: off; without pgo there
+    # is no graph to agree with and it is unused.
     redetect_threshold: float | None = 0.2
     redetect_gate: float = 0.1
 
@@ -156,25 +156,26 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
 
 
 def redetect(cfg: PipelineConfig, est: Estimate, detected, candidates, odom_a, odom_b, a_observes):
-    """The two-threshold detection (`PipelineConfig.redetect_threshold`): the graph fused from the
-    `detected` frames, the `candidates` (N,) among the rest called detected where their estimate
-    agrees with it (`cfg.redetect_gate`, REDETECT_HEADING_DEG), and the graph fused again ->
-    (pgo.FusionResult, range model c (2,), detected (N,))."""
-    fusion, _, trusted = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
-    # guard: where the graph has no answer (no confident rendezvous; online: none at or before
-    # the frame) a candidate is not judged (the pipeline would answer its own estimate there)
+    """The two-threshold detection (`PipelineConfig.redetect_threshold`): the `candidates` (N,)
+    among the frames not `detected` are called detected where their estimate agrees with the
+    pose graph (`cfg.redetect_gate`, REDETECT_HEADING_DEG) -> (pgo.FusionResult, range model c
+    (2,), detected (N,)). Batch: the graph fused from the `detected` frames, then fused again with
+    the frames that agree. Online, in one pass (`pgo.fuse_online_redetect`): frame k is judged by
+    the graph of the frames before it that joined, confident or re-detected."""
+    if cfg.pgo_mode == "online":
+        fusion, c, trusted, detected = _fuse(cfg, est, detected, odom_a, odom_b, a_observes, candidates)
+        return _fall_back(fusion, trusted, est), c, detected
+    fusion, _, trusted, _ = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
+    # guard: where the graph has no answer (no confident rendezvous) a candidate is not judged
+    # (the pipeline would answer its own estimate there)
     detected = detected | (trusted & candidates & agrees(est.xypsi, fusion.relative, cfg.redetect_gate))
     fusion, c = fuse_estimates(cfg, est, detected, odom_a, odom_b, a_observes)
     return fusion, c, detected
 
 
 def agrees(xypsi, fused, gate: float, heading_deg: float = REDETECT_HEADING_DEG):
-    """(N,) bool, the re-detection gate: estimates (N, 3) within `gate` of the fused range of the
-    fused poses (N, 3), their headings within `heading_deg` of the fused heading or its opposite."""
-    near = jnp.linalg.norm(xypsi[:, :2] - fused[:, :2], axis=-1) <= gate * jnp.linalg.norm(fused[:, :2], axis=-1)
-    d = jnp.abs(wrap_angle(xypsi[:, 2] - fused[:, 2]))
-    aligned = jnp.minimum(d, jnp.pi - d) <= jnp.deg2rad(heading_deg)
-    return near & aligned
+    """`pgo.agrees` with the pipeline's heading tolerance."""
+    return pgo.agrees(xypsi, fused, gate, heading_deg)
 
 
 def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
@@ -182,29 +183,38 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
     (pgo.FusionResult, range model c (2,)); batch mode fuses, calibrates the range error
     and fuses again (`pgo.fuse_calibrated`), online mode fuses each frame from those before it.
     Where the graph has no answer the frame keeps its stage estimate."""
-    fusion, c, trusted = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
-    return fusion._replace(relative=jnp.where(trusted[:, None], fusion.relative, est.xypsi)), c
+    fusion, c, trusted, _ = _fuse(cfg, est, detected, odom_a, odom_b, a_observes)
+    return _fall_back(fusion, trusted, est), c
 
 
-def _fuse(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes):
+def _fall_back(fusion, trusted, est: Estimate):
+    return fusion._replace(relative=jnp.where(trusted[:, None], fusion.relative, est.xypsi))
+
+
+def _fuse(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observes, candidates=None):
     """`fuse_estimates` before it falls back: (fusion, c (2,), trusted (N,) bool, the rows where the
-    graph's answer stands)."""
+    graph's answer stands, detected (N,): online with `candidates`, also those that joined)."""
     obs = pgo.observation_from_xy_yaw_rp(est.xypsi, est.roll_pitch)
     rv = pgo.rendezvous_from_frames(odom_a, odom_b, obs, a_observes)
     c = jnp.zeros((2,), est.xypsi.dtype)
     if cfg.pgo_mode == "online":
-        fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+        if candidates is None:
+            fusion = pgo.fuse_online(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+        else:
+            fusion, joined = pgo.fuse_online_redetect(rv, cfg.fusion, detected, candidates, cfg.redetect_gate,
+                                                      REDETECT_HEADING_DEG, flip_prob=est.flip_prob)
+            detected = detected | joined
         # guard: frame k has no answer before a rendezvous at or before it, nor where the
         # one-rendezvous graph of the first rows comes out non-finite (seen on row 0 of the
         # circle under one XLA compilation, not in another: an open numerical issue of fuse_online)
-        return fusion, c, (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1)
+        return fusion, c, (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1), detected
     if cfg.calibrate_range:
         fusion, c = pgo.fuse_calibrated(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     else:
         fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry
     # frames undetermined (the fusion answers NaN)
-    return fusion, c, jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape)
+    return fusion, c, jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape), detected
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:

@@ -252,8 +252,9 @@ def test_redetect_adds_the_low_frames_that_agree_with_the_graph():
 
 
 def test_online_redetect_judges_each_frame_by_the_frames_before_it():
-    """Online, a candidate is judged by the graph of the confident frames at or before it: the good
-    frames before the first confident one stay undetected (batch, which sees the future, takes them)."""
+    """Online, a candidate is judged by the graph of the frames before it that joined: the good
+    frames before the first confident one stay undetected (batch, which sees the future, takes them).
+    The single pass is the plain online fusion of the frames it accepted, row for row."""
     n = 40
     est, odom_a, odom_b = _redetect_case(1, n)
     confident = jnp.asarray((np.arange(n) >= 10) & (np.arange(n) < 20))
@@ -264,6 +265,11 @@ def test_online_redetect_judges_each_frame_by_the_frames_before_it():
             cfg, est, confident, jnp.ones(n, bool), odom_a, odom_b, jnp.ones(n, bool))
         np.testing.assert_array_equal(np.asarray(detected), expect, err_msg=mode)
         assert bool(jnp.all(jnp.isfinite(fusion.relative))), mode
+        if mode == "online":
+            plain, _ = jax.jit(pipeline.fuse_estimates, static_argnums=0)(
+                cfg, est, detected, odom_a, odom_b, jnp.ones(n, bool))
+            np.testing.assert_allclose(np.asarray(fusion.relative), np.asarray(plain.relative), atol=1e-5)
+            np.testing.assert_array_equal(np.asarray(fusion.inlier), np.asarray(plain.inlier))
 
 
 def test_redetect_config_errors():

@@ -13,7 +13,8 @@ Public API:
   `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
 - Robust fusion (consensus + GNC-TLS, information from noise models): `OdometryNoise`,
   `FusionConfig`, `FusionResult`, `fuse` / `fuse_jit` (batch), `fuse_online` /
-  `fuse_online_jit` (row k from rendezvous <= k), `fusion_graph` (the graph GNC sees, host side;
+  `fuse_online_jit` (row k from rendezvous <= k), `fuse_online_redetect` / `fuse_online_redetect_jit`
+  (the same, with candidate rows that join where they `agrees` with the graph before them), `fusion_graph` (the graph GNC sees, host side;
   `gtsam_gnc` hands it to GTSAM's GncOptimizer, the reference),
   `odometry_information`, `rendezvous_from_frames` (per-frame arrays -> Rendezvous);
   range calibration from odometry: `range_model`, `rescale_observations`, and `fuse_calibrated`
@@ -28,10 +29,13 @@ from ._fusion import (
     FusionGraph,
     FusionResult,
     OdometryNoise,
+    agrees,
     fuse,
     fuse_jit,
     fuse_online,
     fuse_online_jit,
+    fuse_online_redetect,
+    fuse_online_redetect_jit,
     fusion_graph,
     odometry_information,
     rendezvous_from_frames,
@@ -65,7 +69,7 @@ __all__ = [
     "Rendezvous", "RhamlPGOConfig", "RhamlPGOResult", "delete_erroneous_nodes", "construct_pose_graph",
     "calculate_information_matrix", "global_optimization", "rhaml_pgo", "rhaml_pgo_jit", "rhaml_pose_graph",
     "observation_from_xy_yaw_rp",
-    "OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "fuse", "fuse_jit", "fuse_online",
-    "fuse_online_jit", "fusion_graph", "gtsam_gnc", "gtsam_poses", "odometry_information", "rendezvous_from_frames",
+    "OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "agrees", "fuse", "fuse_jit", "fuse_online",
+    "fuse_online_jit", "fuse_online_redetect", "fuse_online_redetect_jit", "fusion_graph", "gtsam_gnc", "gtsam_poses", "odometry_information", "rendezvous_from_frames",
     "FusionSequence", "simulate_static_observer", "simulate_two_robots",
 ]

@@ -38,6 +38,7 @@ import jaxlie
 import numpy as np
 
 from ..errors import RhamlError, check_shape
+from ..planar import wrap_angle
 from ._banded import band_solve
 from ._ladder import ladder_iterate, ladder_normal_equations
 from ._residuals import compose, inverse, poses_to_se2, residuals, retract, se2_to_poses
@@ -45,8 +46,9 @@ from ._rhaml_graph import SMALL_GRAPH_COMPILER_OPTIONS, Rendezvous, _planar, _ro
 from ._solver import Problem
 from ._types import PoseGraph, SolverConfig
 
-__all__ = ["OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "fuse", "fuse_jit", "fuse_online",
-           "fuse_online_jit", "fusion_graph", "odometry_information", "rendezvous_from_frames"]
+__all__ = ["OdometryNoise", "FusionConfig", "FusionResult", "FusionGraph", "agrees", "fuse", "fuse_jit", "fuse_online",
+           "fuse_online_jit", "fuse_online_redetect", "fuse_online_redetect_jit", "fusion_graph", "odometry_information",
+           "rendezvous_from_frames"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -489,44 +491,84 @@ def fuse_online(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.A
     """Online fusion: at each row k, `fuse` on the rendezvous <= k (later rows masked: their
     dangling odometry changes nothing), as one `lax.scan` compiled once for K rows. The
     consensus terms (every candidate against every observation) are computed once and summed
-    causally (a cumulative sum), so update k costs one GNC solve on the K-row graph; rows
-    without a usable observation reuse the last update (under vmap both branches run).
+    causally, so update k costs one GNC solve on the K-row graph; rows without a usable
+    observation reuse the last update (under vmap both branches run).
 
     Row k of `relative`, `a0_T_b0` (K, 3), `odom_a_T_odom_b` (K, 3), `inlier`, `flipped` and
     `weights` is what the update at row k said about row k; `poses_a`, `poses_b`, `deleted`,
     `consensus`, `final_cost` are the last update's (= `fuse` on everything); `iterations` and
     `solves` are summed over the updates."""
+    return _online(rv, cfg, valid, None, 0.0, 0.0, flip_prob, obs_sigma)[0]
+
+
+def fuse_online_redetect(rv: Rendezvous, cfg: FusionConfig, valid: jax.Array, candidates: jax.Array, gate: float,
+                         heading_deg: float, flip_prob: jax.Array | None = None,
+                         obs_sigma: jax.Array | None = None) -> tuple[FusionResult, jax.Array]:
+    """`fuse_online` with a second kind of row, in the same single pass: a `candidates` row k
+    (K,) bool, not `valid`, joins the graph where its observation `agrees` (`gate`, `heading_deg`)
+    with what the update before it predicts for row k, i.e. the graph of the rows before k that
+    joined (valid or accepted). Before the first row that joined, nothing is judged. Returns
+    (FusionResult, joined (K,) bool: the usable rows of the graph, valid or accepted)."""
+    return _online(rv, cfg, valid, candidates, gate, heading_deg, flip_prob, obs_sigma)
+
+
+def agrees(xypsi, fused, gate: float, heading_deg: float):
+    """(N,) bool, the re-detection gate: estimates (N, 3) within `gate` of the fused range of the
+    fused poses (N, 3), their headings within `heading_deg` of the fused heading or its opposite
+    (the graph tries both)."""
+    near = jnp.linalg.norm(xypsi[:, :2] - fused[:, :2], axis=-1) <= gate * jnp.linalg.norm(fused[:, :2], axis=-1)
+    d = jnp.abs(wrap_angle(xypsi[:, 2] - fused[:, 2]))
+    aligned = jnp.minimum(d, jnp.pi - d) <= jnp.deg2rad(heading_deg)
+    return near & aligned
+
+
+def _online(rv, cfg: FusionConfig, valid, candidates, gate, heading_deg, flip_prob, obs_sigma):
+    """The scan behind `fuse_online` and `fuse_online_redetect` (candidates None: none)."""
     _check_inputs(rv, valid, flip_prob, obs_sigma, cfg)
     sg = jax.lax.stop_gradient
     K = rv.observation.shape[0]
-    base = jnp.ones((K,), bool) if valid is None else jnp.asarray(valid, bool)
     rows = jnp.arange(K)
+    confident = jnp.ones((K,), bool) if valid is None else jnp.asarray(valid, bool)
+    if candidates is not None:
+        check_shape("candidates", candidates, (K,))
+    cand = jnp.zeros((K,), bool) if candidates is None else jnp.asarray(candidates, bool) & ~confident
+    base = confident | cand  # rows whose observation is read (sanitised) at all
     inp = _inputs(jax.tree.map(sg, rv), base, None if flip_prob is None else sg(flip_prob),
                   None if obs_sigma is None else sg(obs_sigma), cfg)
     t = _consensus_terms(inp, cfg)
-    S = jnp.cumsum(jnp.where(inp.usable[None, None, :], t.kern, 0.0), -1)  # (K, 2, K): score after row k
+    z4 = inp.z4
+    obs_xypsi = jnp.stack([z4[:, 2], z4[:, 3], jnp.arctan2(z4[:, 1], z4[:, 0])], -1)  # (K, 3)
 
-    def update(k):
-        usable = inp.usable & (rows <= k)
-        F, flip, explained = _consensus_pick(t, S[:, :, k], inp.prior, usable, cfg)
-        g0 = _assemble(inp, F, flip, explained, usable, cfg)
+    def update(k, used, score):
+        F, flip, explained = _consensus_pick(t, score, inp.prior, used, cfg)
+        g0 = _assemble(inp, F, flip, explained, used, cfg)
         return _fuse_graph(rv, base & (rows <= k), obs_sigma, g0, cfg)
 
-    def step(last, k):
-        # a row without a usable observation adds nothing (same graph, same consensus scores):
-        # the last update's answer is the batch answer on rows <= k too, no solve needed
-        new = inp.usable[k] | (k == 0)
-        r = jax.lax.cond(new, lambda: update(k), lambda: last)
+    def step(carry, k):
+        last, used, score = carry  # used (K,) bool: rows < k in the graph; score (K, 2): their consensus sum
+        pred = last.relative[k]  # the last update's prediction of row k (its odometry carries it)
+        # guard: before the first row in the graph, the last update answers nothing (its graph has
+        # no rendezvous), and a candidate would be judged by garbage
+        judged = cand[k] & inp.usable[k] & jnp.any(used) & jnp.all(jnp.isfinite(pred))
+        join = (confident[k] & inp.usable[k]) | (judged & agrees(obs_xypsi[k][None], pred[None], gate, heading_deg)[0])
+        used = used | (join & (rows == k))
+        score = score + jnp.where(join, t.kern[:, :, k], 0.0)
+        # a row that does not join adds nothing (same graph, same consensus scores): the last
+        # update's answer is the batch answer on rows <= k too, no solve needed
+        new = join | (k == 0)
+        r = jax.lax.cond(new, lambda: update(k, used, score), lambda: last)
         zero = jnp.zeros((), jnp.int32)
         out = (r.relative[k], r.a0_T_b0, r.odom_a_T_odom_b, r.inlier[k], r.flipped[k], r.weights[k],
                jnp.where(new, r.iterations, zero), jnp.where(new, r.solves, zero))
-        return r, out
+        return (r, used, score), out
 
-    init = jax.eval_shape(update, jnp.asarray(0))
+    used0, score0 = jnp.zeros((K,), bool), jnp.zeros((K, 2), z4.dtype)
+    init = jax.eval_shape(update, jnp.asarray(0), used0, score0)
     init = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), init)
-    last, (rel, a0b0, F, inl, flp, w, it, sol) = jax.lax.scan(step, init, rows)
-    return last._replace(relative=rel, a0_T_b0=a0b0, odom_a_T_odom_b=F, inlier=inl, flipped=flp, weights=w,
-                         iterations=jnp.sum(it), solves=jnp.sum(sol))
+    (last, used, _), (rel, a0b0, F, inl, flp, w, it, sol) = jax.lax.scan(step, (init, used0, score0), rows)
+    res = last._replace(relative=rel, a0_T_b0=a0b0, odom_a_T_odom_b=F, inlier=inl, flipped=flp, weights=w,
+                        iterations=jnp.sum(it), solves=jnp.sum(sol))
+    return res, used
 
 
 def fusion_graph(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid=None, flip_prob=None,
@@ -556,3 +598,6 @@ fuse_jit = jax.jit(fuse, static_argnames="cfg", compiler_options=SMALL_GRAPH_COM
 """`fuse` jit-compiled, one executable per shape and config, shared by all callers."""
 fuse_online_jit = jax.jit(fuse_online, static_argnames="cfg", compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
 """`fuse_online` jit-compiled."""
+fuse_online_redetect_jit = jax.jit(fuse_online_redetect, static_argnames=("cfg", "gate", "heading_deg"),
+                                   compiler_options=SMALL_GRAPH_COMPILER_OPTIONS)
+"""`fuse_online_redetect` jit-compiled."""
