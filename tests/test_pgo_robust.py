@@ -17,7 +17,7 @@ from rhaml_jax.data import circle, sine
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.metrics import ate
 from rhaml_jax.pgo import (
-    FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fusion_graph, gtsam_gnc, gtsam_poses,
+    FusionConfig, OdometryNoise, fuse, fuse_jit, fuse_online_jit, fuse_online_redetect_jit, fusion_graph, gtsam_gnc, gtsam_poses,
     observation_from_xy_yaw_rp,
     odometry_information, simulate_static_observer, simulate_two_robots,
 )
@@ -180,6 +180,29 @@ def test_online_row_k_equals_batch_on_the_first_k_plus_1():
     b = fuse_jit(jax.tree.map(jnp.asarray, cut), CFG, jnp.asarray(seq.valid & (np.arange(K) <= k)))
     np.testing.assert_allclose(np.asarray(on.relative[k]), np.asarray(b.relative[k]), atol=1e-8)
     np.testing.assert_allclose(np.asarray(on.a0_T_b0[k]), np.asarray(b.a0_T_b0), atol=1e-8)
+
+
+def test_online_redetect_takes_the_candidates_that_fit_in_the_same_pass():
+    """Every other rendezvous demoted to a candidate: the gross ones never join, the others do once
+    the graph holds a few rendezvous (before, it may rest on a gross one: this sequence's row 0), and
+    the one pass is `fuse_online` over the rows it took (no candidates: `fuse_online`)."""
+    seq = simulate_two_robots(K, 3, flip_fraction=0.4, gross_fraction=0.1)
+    rv, valid = _dev(seq), jnp.asarray(seq.valid)
+    kv = np.flatnonzero(seq.valid)
+    confident = np.zeros(K, bool)
+    confident[kv[::2]] = True
+    candidates = seq.valid & ~confident
+    none, joined0 = fuse_online_redetect_jit(rv, CFG, valid, jnp.zeros(K, bool), 0.1, 30.0)
+    np.testing.assert_allclose(np.asarray(none.relative), np.asarray(fuse_online_jit(rv, CFG, valid).relative), atol=1e-9)
+    res, joined = fuse_online_redetect_jit(rv, CFG, jnp.asarray(confident), jnp.asarray(candidates), 0.1, 30.0)
+    joined = np.asarray(joined)
+    assert not np.any(joined & candidates & seq.gross)
+    late = candidates & ~seq.gross & (np.arange(K) >= kv[len(kv) // 2])
+    assert late.sum() >= 3 and joined[late].all()
+    plain = fuse_online_jit(rv, CFG, jnp.asarray(joined))
+    np.testing.assert_allclose(np.asarray(res.relative), np.asarray(plain.relative), atol=1e-8)
+    with pytest.raises(RhamlError, match=r"candidates: expected shape \(40\), got \(39,\)"):
+        fuse_online_redetect_jit(rv, CFG, valid, jnp.zeros(K - 1, bool), 0.1, 30.0)
 
 
 def test_matches_gtsam_gnc_optimizer_on_the_same_graph():

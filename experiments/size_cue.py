@@ -1,0 +1,131 @@
+"""What the shipped IML reads the range from: the robot's pixels of one scene pasted on other
+backgrounds (same poses, same robot pixels), and how dark the surroundings of the robot are in
+each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read from the contrast
+with the surroundings").
+
+  python experiments/size_cue.py composite --robot A --out OUT [--background B] [--evaluate-args=...]
+  python experiments/size_cue.py surround DATA [DATA ...]
+
+composite: A and B are BOP scenes of the same poses (e.g. the OOD validation sine of seeds 1 and
+2). Writes OUT/<name>, a copy of A whose images keep A's robot pixels (its visible mask) on a
+background: uniform black (15), grey (110) or white (220), A's own image darkened to 0.35, and,
+with --background, B's image as it is and Gaussian-blurred (8 px); then runs `evaluate --modules iml
+--zoom-mirror` on each (the shipped networks) and prints, over the detected frames with the robot
+in view: |dx| (cm, mean and median), flips, median estimated / true range, detections. The pasted
+pixels carry A's shading, so a mismatch of light between robot and room is part of what is tested.
+
+surround: per data set (every BOP frame with the robot in view; at most 300 frames, evenly
+spaced), the median over frames of the luma (Rec. 601, 0-1) around the robot (its mask's box grown
+by half its size each side, the mask excluded) and of the robot's darkest tenth of pixels, and
+the share of frames where the surroundings are darker than that tenth plus 0.1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageFilter
+
+
+def _luma(rgb: np.ndarray) -> np.ndarray:
+    return rgb[..., :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32) / 255.0
+
+
+def _backgrounds(robot: Path, background: Path | None) -> dict:
+    """name -> (image file name -> background (H, W, 3) uint8)."""
+    rgb = lambda root, n: np.asarray(Image.open(root / n).convert("RGB"))  # noqa: E731
+    shape = rgb(robot, next(iter(sorted(robot.iterdir()))).name).shape
+    out = {f"uniform {k}": (lambda n, v=v: np.full(shape, v, np.uint8)) for k, v in (("black", 15), ("grey", 110), ("white", 220))}
+    out["own room at 0.35"] = lambda n: (rgb(robot, n) * 0.35).astype(np.uint8)
+    if background is not None:
+        out["other room"] = lambda n: rgb(background, n)
+        out["other room, blurred"] = lambda n: np.asarray(Image.open(background / n).convert("RGB").filter(ImageFilter.GaussianBlur(8)))
+    return out
+
+
+def _scene(root: Path) -> Path:
+    scenes = sorted(p for p in (root / "test").iterdir() if p.is_dir())
+    if len(scenes) != 1:
+        raise SystemExit(f"{root}: expected one scene under test/, found {len(scenes)}")
+    return scenes[0]
+
+
+def composite(a) -> None:
+    from rhaml_jax.metrics import frame_summary
+
+    src = _scene(a.robot)
+    bgs = _backgrounds(src / "rgb", None if a.background is None else _scene(a.background) / "rgb")
+    print("| background | abs dx (cm) mean / median | flips | median est/true range | detected |\n| --- | --- | --- | --- | --- |")
+    for name, bg in bgs.items():
+        slug = name.replace(" ", "_").replace(",", "").replace(".", "")
+        out, js = a.out / slug, a.out / f"{slug}.json"
+        if not js.exists():
+            shutil.rmtree(out, ignore_errors=True)
+            shutil.copytree(a.robot, out, ignore=shutil.ignore_patterns("rgb"))
+            dst = _scene(out) / "rgb"
+            dst.mkdir()
+            for f in sorted((src / "rgb").iterdir()):
+                mask = src / "mask_visib" / f"{f.stem}_000000.png"
+                img = bg(f.name).copy()
+                if mask.exists():
+                    m = np.asarray(Image.open(mask)) > 0
+                    img[m] = np.asarray(Image.open(f).convert("RGB"))[m]
+                Image.fromarray(img).save(dst / f.name)
+            cmd = [sys.executable, "-m", "rhaml_jax.evaluate", "--data", str(out), "--modules", "iml", "--zoom-mirror",
+                   "--json", str(js), *shlex.split(a.evaluate_args)]
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        rows = [dict(r, est=r["iml_est"]) for r in json.loads(js.read_text())["frames"]]
+        s = frame_summary(rows)
+        print(f"| {name} | {s['dx_cm'][0]:.1f} / {s['dx_cm'][2]:.1f} | {s['flips']} / {s['n']} | "
+              f"{s['median_range_ratio']:.3f} | {s['detection']['tp']} of {s['detection']['tp'] + s['detection']['fn']} |",
+              flush=True)
+
+
+def surround(a) -> None:
+    from rhaml_jax.data import read_bop
+
+    print("| data | frames | luma around the robot | the robot's darkest tenth | surroundings darker than it + 0.1 |\n"
+          "| --- | --- | --- | --- | --- |")
+    for root in a.data:
+        frames = [f for f in read_bop(root) if f.mask is not None]
+        frames = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(300, len(frames))).astype(int))]
+        around, dark = [], []
+        for f in frames:
+            m = np.asarray(Image.open(f.mask)) > 0
+            if m.sum() < 20:
+                continue
+            y = _luma(np.asarray(Image.open(f.rgb).convert("RGB")))
+            ys, xs = np.nonzero(m)
+            h, w = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
+            box = np.zeros_like(m)
+            box[max(0, ys.min() - h // 2): ys.max() + h // 2 + 1, max(0, xs.min() - w // 2): xs.max() + w // 2 + 1] = True
+            around.append(float(np.median(y[box & ~m])))
+            dark.append(float(np.percentile(y[m], 10)))
+        around, dark = np.array(around), np.array(dark)
+        print(f"| {root} | {len(around)} | {np.median(around):.3f} | {np.median(dark):.3f} | "
+              f"{np.mean(around < dark + 0.1):.0%} |", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("composite")
+    c.add_argument("--robot", type=Path, required=True)
+    c.add_argument("--background", type=Path)
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("--evaluate-args", default="")
+    s = sub.add_parser("surround")
+    s.add_argument("data", type=Path, nargs="+")
+    a = ap.parse_args()
+    composite(a) if a.cmd == "composite" else surround(a)
+
+
+if __name__ == "__main__":
+    main()
