@@ -4,7 +4,7 @@ each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read f
 with the surroundings").
 
   python experiments/size_cue.py composite --robot A --out OUT [--background B] [--evaluate-args=...]
-  python experiments/size_cue.py surround DATA [DATA ...]
+  python experiments/size_cue.py surround DATA [DATA ...] [--runs EVAL.json ...]
 
 composite: A and B are BOP scenes of the same poses (e.g. the OOD validation sine of seeds 1 and
 2). Writes OUT/<name>, a copy of A whose images keep A's robot pixels (its visible mask) on a
@@ -17,7 +17,10 @@ pixels carry A's shading, so a mismatch of light between robot and room is part 
 surround: per data set (every BOP frame with the robot in view; at most 300 frames, evenly
 spaced), the median over frames of the luma (Rec. 601, 0-1) around the robot (its mask's box grown
 by half its size each side, the mask excluded) and of the robot's darkest tenth of pixels, and
-the share of frames where the surroundings are darker than that tenth plus 0.1.
+the share of frames where the surroundings are darker than that tenth plus 0.1, and where both are
+dark (surroundings under 0.1, the darkest tenth under 0.05). With --runs (one
+`evaluate --json` run per DATA), also the median IML est/true range in each quarter of the frames
+by the luma around the robot (detected frames).
 """
 
 from __future__ import annotations
@@ -91,13 +94,17 @@ def composite(a) -> None:
 def surround(a) -> None:
     from rhaml_jax.data import read_bop
 
-    print("| data | frames | luma around the robot | the robot's darkest tenth | surroundings darker than it + 0.1 |\n"
-          "| --- | --- | --- | --- | --- |")
-    for root in a.data:
-        frames = [f for f in read_bop(root) if f.mask is not None]
-        frames = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(300, len(frames))).astype(int))]
-        around, dark = [], []
-        for f in frames:
+    if a.runs and len(a.runs) != len(a.data):
+        raise SystemExit(f"--runs: {len(a.runs)} runs for {len(a.data)} data sets (one per DATA)")
+    print("| data | frames | luma around the robot | the robot's darkest tenth | surroundings darker than it + 0.1 | both dark |"
+          f"{' IML range ratio by quarter of the luma around |' if a.runs else ''}\n"
+          f"| --- | --- | --- | --- | --- | --- |{' --- |' if a.runs else ''}")
+    for i, root in enumerate(a.data):
+        rows = json.loads(a.runs[i].read_text())["frames"] if a.runs else None
+        frames = [(k, f) for k, f in enumerate(read_bop(root)) if f.mask is not None]
+        frames = [frames[j] for j in np.unique(np.linspace(0, len(frames) - 1, min(300, len(frames))).astype(int))]
+        around, dark, ratio = [], [], []
+        for k, f in frames:
             m = np.asarray(Image.open(f.mask)) > 0
             if m.sum() < 20:
                 continue
@@ -108,9 +115,16 @@ def surround(a) -> None:
             box[max(0, ys.min() - h // 2): ys.max() + h // 2 + 1, max(0, xs.min() - w // 2): xs.max() + w // 2 + 1] = True
             around.append(float(np.median(y[box & ~m])))
             dark.append(float(np.percentile(y[m], 10)))
-        around, dark = np.array(around), np.array(dark)
+            r = rows[k] if rows else None
+            ratio.append(np.hypot(*r["iml_est"][:2]) / np.hypot(*r["gt"][:2]) if r and r["detected"] else np.nan)
+        around, dark, ratio = np.array(around), np.array(dark), np.array(ratio)
+        cells = ""
+        if rows:
+            q = np.quantile(around, [0.25, 0.5, 0.75])
+            part = np.searchsorted(q, around)
+            cells = " " + ", ".join(f"{np.nanmedian(ratio[part == j]):.3f}" for j in range(4)) + " |"
         print(f"| {root} | {len(around)} | {np.median(around):.3f} | {np.median(dark):.3f} | "
-              f"{np.mean(around < dark + 0.1):.0%} |", flush=True)
+              f"{np.mean(around < dark + 0.1):.0%} | {np.mean((around < 0.1) & (dark < 0.05)):.0%} |{cells}", flush=True)
 
 
 def main() -> None:
@@ -123,6 +137,7 @@ def main() -> None:
     c.add_argument("--evaluate-args", default="")
     s = sub.add_parser("surround")
     s.add_argument("data", type=Path, nargs="+")
+    s.add_argument("--runs", type=Path, nargs="+", default=[])
     a = ap.parse_args()
     composite(a) if a.cmd == "composite" else surround(a)
 

@@ -22,7 +22,7 @@ def main():
     a = ap.parse_args()
     import jax
 
-    from rhaml_jax import iml, metrics, pipeline, planar, tune_allocator
+    from rhaml_jax import iml, pipeline, planar, tune_allocator
     from rhaml_jax.data import read_bop, read_tum
     from rhaml_jax.evaluate import score
     from rhaml_jax.sequence import group_scenes, interleave, load_scene
@@ -64,6 +64,21 @@ def main():
             print(json.dumps(row), flush=True)
             rows.append(row)
     json.dump({"frames": len(data.frames), "observed": int(data.observed.sum()), "rows": rows}, open(a.out, "w"), indent=1)
+    print(table(rows))
+
+
+def table(rows: list[dict]) -> str:
+    """The rows as BENCHMARKS.md's Markdown table."""
+    pm = lambda v: f"{v[0]:.1f} +- {v[1]:.1f}"  # noqa: E731
+    out = ["| modules | PGO | abs dx (cm) | abs dy (cm) | abs dpsi (deg) | ATE | A_0 T B_0 error | detection tp / fp / fn / tn |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        d = r["detection"]
+        a0 = f"{r['a0_T_b0_error_cm']:.1f} cm, {r['a0_T_b0_error_deg']:.2f} deg" if "a0_T_b0_error_cm" in r else ""
+        out.append(f"| {r['modules'].upper().replace(',', '+')} | {'' if r['pgo_mode'] == '-' else r['pgo_mode']} | "
+                   f"{pm(r['dx_cm'])} | {pm(r['dy_cm'])} | {pm(r['dpsi_deg'])} | {r['ate']:.3f} | {a0} | "
+                   f"{d['tp']} / {d['fp']} / {d['fn']} / {d['tn']} |")
+    return "\n".join(out)
 
 
 if __name__ == "__main__":
