@@ -60,7 +60,9 @@ def main():
                 a0 = a0[-1] if a0.ndim == 2 else a0  # online: after the last frame
                 d = planar.between(true_a0_T_b0, a0.astype(np.float64))
                 row |= {"a0_T_b0_error_cm": float(100 * np.hypot(d[0], d[1])), "a0_T_b0_error_deg": float(np.degrees(abs(d[2]))),
-                        "rejected": int((np.asarray(res.detected) & ~np.asarray(res.fusion.inlier)).sum())}
+                        "rejected": int((np.asarray(res.detected) & ~np.asarray(res.fusion.inlier)).sum()),
+                        "false_positives_rejected": int((np.asarray(res.detected) & ~data.observed
+                                                         & ~np.asarray(res.fusion.inlier)).sum())}
             print(json.dumps(row), flush=True)
             rows.append(row)
     json.dump({"frames": len(data.frames), "observed": int(data.observed.sum()), "rows": rows}, open(a.out, "w"), indent=1)
