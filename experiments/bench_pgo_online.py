@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -33,17 +31,8 @@ from rhaml_jax import pgo  # noqa: E402
 from rhaml_jax.metrics import ate  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import timed  # noqa: E402
 from bench_pgo_robust import CFG, sequence  # noqa: E402
-
-
-def timed(fn, repeats):
-    out = jax.block_until_ready(fn())
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return out, statistics.median(ts)
 
 
 def main():

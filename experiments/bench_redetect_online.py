@@ -18,8 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
-import time
+import sys
 from pathlib import Path
 
 import jax
@@ -32,6 +31,9 @@ from rhaml_jax.evaluate import score
 from rhaml_jax.iml import Estimate
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 from rhaml_jax.sequence import group_scenes, load_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import timed  # noqa: E402
 
 CFG = pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), pgo_mode="online")
 
@@ -52,16 +54,6 @@ def off(cfg, est, detected, candidates, odom_a, odom_b, a_observes):
 
 METHODS = {"no re-detection": jax.jit(off, static_argnums=0), "two passes (session 35)": jax.jit(two_pass, static_argnums=0),
            "one pass": jax.jit(pipeline.redetect, static_argnums=0)}
-
-
-def timed(fn, repeats):
-    out = jax.block_until_ready(fn())
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return out, statistics.median(ts)
 
 
 def main() -> None:
