@@ -188,6 +188,7 @@ def fuse_estimates(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b,
 
 
 def _fall_back(fusion, trusted, est: Estimate):
+    """The fusion with its rows where the graph has no answer (not `trusted`) set to the estimate."""
     return fusion._replace(relative=jnp.where(trusted[:, None], fusion.relative, est.xypsi))
 
 
