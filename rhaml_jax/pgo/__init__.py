@@ -13,9 +13,10 @@ Public API:
   `rhaml_pose_graph` (the graph as a `PoseGraph`, e.g. for `write_g2o`).
 - Robust fusion (consensus + GNC-TLS, information from noise models): `OdometryNoise`,
   `FusionConfig`, `FusionResult`, `fuse` / `fuse_jit` (batch), `fuse_online` /
-  `fuse_online_jit` (row k from rendezvous <= k), `fuse_online_redetect` / `fuse_online_redetect_jit`
-  (the same, with candidate rows that join where they `agrees` with the graph before them), `fusion_graph` (the graph GNC sees, host side;
-  `gtsam_gnc` hands it to GTSAM's GncOptimizer, the reference),
+  `fuse_online_jit` (row k from rendezvous <= k), `fuse_online_redetect` /
+  `fuse_online_redetect_jit` (the same, with candidate rows that join where they `agrees` with
+  the graph before them), `fusion_graph` (the graph GNC sees, host side; `gtsam_gnc` hands it to
+  GTSAM's GncOptimizer, the reference),
   `odometry_information`, `rendezvous_from_frames` (per-frame arrays -> Rendezvous);
   range calibration from odometry: `range_model`, `rescale_observations`, and `fuse_calibrated`
   (fuse, calibrate, fuse again, kept only if the calibrated fusion keeps `MIN_SUPPORT` of the rows);
