@@ -537,7 +537,6 @@ def _online(rv, cfg: FusionConfig, valid, candidates, gate, heading_deg, flip_pr
                   None if obs_sigma is None else sg(obs_sigma), cfg)
     t = _consensus_terms(inp, cfg)
     z4 = inp.z4
-    obs_xypsi = jnp.stack([z4[:, 2], z4[:, 3], jnp.arctan2(z4[:, 1], z4[:, 0])], -1)  # (K, 3)
 
     def update(k, used, score):
         F, flip, explained = _consensus_pick(t, score, inp.prior, used, cfg)
@@ -546,11 +545,14 @@ def _online(rv, cfg: FusionConfig, valid, candidates, gate, heading_deg, flip_pr
 
     def step(carry, k):
         last, used, score = carry  # used (K,) bool: rows < k in the graph; score (K, 2): their consensus sum
-        pred = last.relative[k]  # the last update's prediction of row k (its odometry carries it)
-        # guard: before the first row in the graph, the last update answers nothing (its graph has
-        # no rendezvous), and a candidate would be judged by garbage
-        judged = cand[k] & inp.usable[k] & jnp.any(used) & jnp.all(jnp.isfinite(pred))
-        join = (confident[k] & inp.usable[k]) | (judged & agrees(obs_xypsi[k][None], pred[None], gate, heading_deg)[0])
+        join = confident[k] & inp.usable[k]
+        if candidates is not None:  # static: plain fuse_online traces no gate
+            pred = last.relative[k]  # the last update's prediction of row k (its odometry carries it)
+            # guard: before the first row in the graph, the last update answers nothing (its graph
+            # has no rendezvous), and a candidate would be judged by garbage
+            judged = cand[k] & inp.usable[k] & jnp.any(used) & jnp.all(jnp.isfinite(pred))
+            z = jnp.stack([z4[k, 2], z4[k, 3], jnp.arctan2(z4[k, 1], z4[k, 0])])  # row k's observation (x, y, psi)
+            join = join | (judged & agrees(z[None], pred[None], gate, heading_deg)[0])
         used = used | (join & (rows == k))
         score = score + jnp.where(join, t.kern[:, :, k], 0.0)
         # a row that does not join adds nothing (same graph, same consensus scores): the last
