@@ -362,3 +362,29 @@ def test_a_camouflaged_robot_is_closer_to_its_surroundings():
             rgb = s.rgb[box].astype(np.float64)
             gaps[p].append(np.abs(rgb[~outside].mean(0) - rgb[outside].mean(0)).sum())
     assert np.mean(gaps[1.0]) < 0.5 * np.mean(gaps[0.0]), gaps
+
+
+def test_dim_room_is_drawn_last_inside_its_range_and_dims_the_backdrop_only():
+    """dim_room_prob: a gain inside `dim_room` as often as the probability says, drawn after every
+    other factor (a set without it keeps its draws); in a rendered image it darkens the room
+    around the robot by that gain and leaves the robot's pixels as they were."""
+    dim = dataclasses.replace(CFG, dim_room_prob=0.5)
+    plain, looks = _looks(8, 400), [data.sample_look(dim, 8, i, GROUPS) for i in range(400)]
+    assert all(_same(dataclasses.replace(lk, room_gain=1.0), p) for lk, p in zip(looks, plain))
+    g = np.array([lk.room_gain for lk in looks])
+    assert abs(np.mean(g < 1) - 0.5) < 0.07 and np.all((g == 1) | ((g >= CFG.dim_room[0]) & (g <= CFG.dim_room[1])))
+    assert np.all([p.room_gain == 1.0 for p in plain])
+    mesh = as_mesh(load_robot("pioneer3dx"))
+    quiet = dict(noise=(0.0, 0.0), jpeg_prob=0.0, defocus_prob=0.0, motion_prob=0.0, vignette=(0.0, 0.0), gamma=(1.0, 1.0),
+                 exposure_stops=(0.0, 0.0), white_balance=(1.0, 1.0), cart_prob=0.0)
+    base = dataclasses.replace(CFG, **quiet)
+    for i in range(3):
+        a = data.training_sample(mesh, SMALL, 11, i, negative=False, cfg=data.SynthConfig(appearance=base))
+        b = data.training_sample(mesh, SMALL, 11, i, negative=False, cfg=data.SynthConfig(
+            appearance=dataclasses.replace(base, dim_room_prob=1.0, dim_room=(0.25, 0.25))))
+        robot = b.mask_visib.astype(bool)
+        assert np.array_equal(robot, a.mask_visib.astype(bool)) and robot.any()
+        assert np.array_equal(a.rgb[robot], b.rgb[robot])
+        ra, rb = a.rgb[~robot].astype(np.float64), b.rgb[~robot].astype(np.float64)
+        lit = ra > 40  # the room's pixels (distractors, not dimmed, are few), away from 8-bit rounding
+        assert abs(np.median(rb[lit] / ra[lit]) - 0.25) < 0.02, np.median(rb[lit] / ra[lit])

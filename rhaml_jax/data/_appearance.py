@@ -113,6 +113,11 @@ class AppearanceConfig:
       takes its surroundings' mean colour and brightness; its shading and the contrast between
       its parts stay, so its shape is what remains to see. Parts are clipped to [0, 1] and kept
       out of hue_exclude_deg. 0 in the v2 and v3 sets (which it leaves as they were: no draw at 0).
+    Dim surroundings (a robot lit brighter than the room around it, as under ceiling lamps: the
+      networks read the range long when the surroundings are dark, BENCHMARKS.md "The range is read
+      from the surroundings"): with dim_room_prob, the room or photograph behind the robot (with
+      its floor shadows) is multiplied by a gain drawn log-uniformly from dim_room; the robot and
+      the distractors are lit as before. 0 in the v2 and v3 sets (no draw at 0).
     """
 
     part_grey_prob: float = 0.15
@@ -158,6 +163,8 @@ class AppearanceConfig:
     camouflage_prob: float = 0.0
     camouflage: Range = (0.5, 1.0)
     monochrome_prob: float = 0.0
+    dim_room_prob: float = 0.0
+    dim_room: Range = (0.05, 0.5)
 
     def __post_init__(self):
         if not _DEFERRED[0]:
@@ -170,7 +177,8 @@ class AppearanceConfig:
                   "flash_falloff": (0, None), "light_saturation": (0, 1), "specular": (0, None), "shininess": (1, None),
                   "shadow_strength": (0, 1), "shadow_blur_px": (0, None), "contact_strength": (0, 1), "white_balance": (0, None),
                   "gamma": (0.1, None), "vignette": (0, 1), "defocus_px": (0, None), "motion_px": (0, None), "noise": (0, None),
-                  "jpeg_quality": (1, 100), "cart_length_m": (0.05, None), "camouflage": (0, 1)}
+                  "jpeg_quality": (1, 100), "cart_length_m": (0.05, None), "camouflage": (0, 1),
+                  "dim_room": (0.001, 1)}
         _check_fields(self, bounds)
         unknown = [k for k in self.texture_kinds if k not in _KNOWN_KINDS]
         if unknown:
@@ -373,6 +381,7 @@ class Look:
     livery_period: float = 0.0  # checker cell size in the robot's body frame (m; 0: no livery)
     livery_rgb: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))  # its second colour
     camouflage: float = 0.0  # t of AppearanceConfig.camouflage (0: none)
+    room_gain: float = 1.0  # the backdrop's brightness factor (AppearanceConfig.dim_room; 1: as lit)
 
     @property
     def part_rgb(self) -> np.ndarray:
@@ -480,6 +489,8 @@ def sample_look(cfg: AppearanceConfig, seed: int, index: int, base_colors: np.nd
         look = dataclasses.replace(look, camouflage=_u(rng, cfg.camouflage))
     if cfg.monochrome_prob > 0 and rng.random() < cfg.monochrome_prob:  # likewise
         look = dataclasses.replace(look, part_hsv=_monochrome_hsv(rng, len(part), cfg))
+    if cfg.dim_room_prob > 0 and rng.random() < cfg.dim_room_prob:  # likewise
+        look = dataclasses.replace(look, room_gain=float(np.exp(rng.uniform(*np.log(cfg.dim_room)))))
     return look
 
 

@@ -384,7 +384,7 @@ def training_sample_v2(model_mesh, camera: Camera, seed: int, index: int, negati
         if floor is not None:
             bg_rgb = _floor_shadows(bg_rgb, bg_depth, floor, np.concatenate([robot_world, dv]),
                                     np.concatenate([faces_model, df + len(robot_world)]), T_cam, camera, look, scale)
-        layers = [(np.clip(bg_rgb, 0, None), np.ones((H, W), bool), bg_depth)]
+        layers = [(np.clip(bg_rgb * np.float32(look.room_gain), 0, None), np.ones((H, W), bool), bg_depth)]
         if slots:
             dmesh = Mesh(jnp.asarray(dv), jnp.asarray(df), jnp.asarray(dc))
             layers.append(_shaded(_albedo_layer(dmesh, T_cam, camera), dv, df, camera, cam_pose, look, highlights=False))
