@@ -364,22 +364,30 @@ def test_a_camouflaged_robot_is_closer_to_its_surroundings():
     assert np.mean(gaps[1.0]) < 0.5 * np.mean(gaps[0.0]), gaps
 
 
-def test_dim_room_is_drawn_last_inside_its_range_and_dims_the_backdrop_only():
-    """dim_room_prob: a gain inside `dim_room` as often as the probability says, drawn after every
-    other factor (a set without it keeps its draws); in a rendered image it darkens the room
-    around the robot by that gain and leaves the robot's pixels as they were."""
+def test_dim_room_inside_its_ranges_keeps_dark_parts_dark_and_dims_the_backdrop_only():
+    """dim_room_prob: a gain inside `dim_room` as often as the probability says, and then every
+    part's lift inside `dim_room_lift` (dark parts stay dark); pure in (seed, index); in a rendered
+    image it darkens the room around the robot by that gain and leaves the robot's pixels as the
+    same look without the gain renders them."""
     dim = dataclasses.replace(CFG, dim_room_prob=0.5)
-    plain, looks = _looks(8, 400), [data.sample_look(dim, 8, i, GROUPS) for i in range(400)]
-    assert all(_same(dataclasses.replace(lk, room_gain=1.0), p) for lk, p in zip(looks, plain))
+    looks = [data.sample_look(dim, 8, i, GROUPS) for i in range(400)]
+    assert _same(looks[7], data.sample_look(dim, 8, 7, GROUPS))
     g = np.array([lk.room_gain for lk in looks])
     assert abs(np.mean(g < 1) - 0.5) < 0.07 and np.all((g == 1) | ((g >= CFG.dim_room[0]) & (g <= CFG.dim_room[1])))
-    assert np.all([p.room_gain == 1.0 for p in plain])
+    kept = dataclasses.replace(dim, part_grey_prob=0.0, part_recolour_prob=0.0)  # each part its own value, then lifted
+    v0 = rgb_to_hsv(GROUPS)[:, 2]
+    v0 = v0[v0 < 1]  # the parts a lift can change (the model's are ordered by colour: white last)
+    for lk in (data.sample_look(kept, 8, i, GROUPS) for i in range(200)):
+        lift = (lk.part_hsv[: len(v0), 2] - v0) / (1.0 - v0)
+        lo, hi = CFG.dim_room_lift if lk.room_gain < 1 else CFG.dark_lift
+        assert np.all((lift >= lo - 1e-9) & (lift <= hi + 1e-9)), (lk.room_gain, lift)
     mesh = as_mesh(load_robot("pioneer3dx"))
     quiet = dict(noise=(0.0, 0.0), jpeg_prob=0.0, defocus_prob=0.0, motion_prob=0.0, vignette=(0.0, 0.0), gamma=(1.0, 1.0),
                  exposure_stops=(0.0, 0.0), white_balance=(1.0, 1.0), cart_prob=0.0)
     base = dataclasses.replace(CFG, **quiet)
     for i in range(3):
-        a = data.training_sample(mesh, SMALL, 11, i, negative=False, cfg=data.SynthConfig(appearance=base))
+        a = data.training_sample(mesh, SMALL, 11, i, negative=False, cfg=data.SynthConfig(
+            appearance=dataclasses.replace(base, dim_room_prob=1.0, dim_room=(1.0, 1.0))))  # the same draws at gain 1
         b = data.training_sample(mesh, SMALL, 11, i, negative=False, cfg=data.SynthConfig(
             appearance=dataclasses.replace(base, dim_room_prob=1.0, dim_room=(0.25, 0.25))))
         robot = b.mask_visib.astype(bool)
