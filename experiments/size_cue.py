@@ -3,7 +3,8 @@ backgrounds (same poses, same robot pixels), and how dark the surroundings of th
 each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read from the contrast
 with the surroundings").
 
-  python experiments/size_cue.py composite --robot A --out OUT [--background B] [--evaluate-args=...]
+  python experiments/size_cue.py composite --robot A --out OUT [--background B] [--only NAME ...] [--lift-dark L] [--evaluate-args=...]
+  python experiments/size_cue.py check DATA [DATA ...] --out OUT [--evaluate-args=...]
   python experiments/size_cue.py surround DATA [DATA ...] [--runs EVAL.json ...]
 
 composite: A and B are BOP scenes of the same poses (e.g. the OOD validation sine of seeds 1 and
@@ -13,6 +14,11 @@ with --background, B's image as it is and Gaussian-blurred (8 px); then runs `ev
 --zoom-mirror` on each (the shipped networks) and prints, over the detected frames with the robot
 in view: |dx| (cm, mean and median), flips, median estimated / true range, detections. The pasted
 pixels carry A's shading, so a mismatch of light between robot and room is part of what is tested.
+--only keeps the named backgrounds (e.g. "uniform black"); --lift-dark L adds grey to every robot
+pixel of luma under L so that its luma is L (the robot's dark parts made visible on any background).
+
+check: the IML of --evaluate-args (e.g. other networks, or --no-zoom) on BOP sets, composites
+written before among them; the same columns, one row per set (runs kept in OUT: a rerun skips them).
 
 surround: per data set (every BOP frame with the robot in view; at most 300 frames, evenly
 spaced), the median over frames of the luma (Rec. 601, 0-1) around the robot (its mask's box grown
@@ -61,10 +67,11 @@ def _scene(root: Path) -> Path:
 
 
 def composite(a) -> None:
-    from rhaml_jax.metrics import frame_summary
-
     src = _scene(a.robot)
     bgs = _backgrounds(src / "rgb", None if a.background is None else _scene(a.background) / "rgb")
+    bgs = {k: v for k, v in bgs.items() if not a.only or k in a.only}
+    if a.only and len(bgs) != len(set(a.only)):
+        raise SystemExit(f"--only: unknown background name(s) {sorted(set(a.only) - set(bgs))}")
     print("| background | abs dx (cm) mean / median | flips | median est/true range | detected |\n| --- | --- | --- | --- | --- |")
     for name, bg in bgs.items():
         slug = name.replace(" ", "_").replace(",", "").replace(".", "")
@@ -79,16 +86,34 @@ def composite(a) -> None:
                 img = bg(f.name).copy()
                 if mask.exists():
                     m = np.asarray(Image.open(mask)) > 0
-                    img[m] = np.asarray(Image.open(f).convert("RGB"))[m]
+                    px = np.asarray(Image.open(f).convert("RGB")).astype(np.float32)
+                    if a.lift_dark > 0:
+                        px = px + np.maximum(0.0, 255.0 * a.lift_dark - _luma(px) * 255.0)[..., None]
+                    img[m] = np.clip(px[m] + 0.5, 0, 255).astype(np.uint8)
                 Image.fromarray(img).save(dst / f.name)
-            cmd = [sys.executable, "-m", "rhaml_jax.evaluate", "--data", str(out), "--modules", "iml", "--zoom-mirror",
-                   "--json", str(js), *shlex.split(a.evaluate_args)]
-            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-        rows = [dict(r, est=r["iml_est"]) for r in json.loads(js.read_text())["frames"]]
-        s = frame_summary(rows)
-        print(f"| {name} | {s['dx_cm'][0]:.1f} / {s['dx_cm'][2]:.1f} | {s['flips']} / {s['n']} | "
-              f"{s['median_range_ratio']:.3f} | {s['detection']['tp']} of {s['detection']['tp'] + s['detection']['fn']} |",
-              flush=True)
+        print(_iml_row(name, out, js, a.evaluate_args), flush=True)
+
+
+def _iml_row(name: str, data: Path, js: Path, evaluate_args: str) -> str:
+    """Runs the IML on `data` (unless `js` holds the run) and gives its table row."""
+    from rhaml_jax.metrics import frame_summary
+
+    if not js.exists():
+        extra = shlex.split(evaluate_args)
+        mirror = [] if "--no-zoom" in extra else ["--zoom-mirror"]
+        cmd = [sys.executable, "-m", "rhaml_jax.evaluate", "--data", str(data), "--modules", "iml", *mirror, "--json", str(js), *extra]
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    s = frame_summary([dict(r, est=r["iml_est"]) for r in json.loads(js.read_text())["frames"]])
+    return (f"| {name} | {s['dx_cm'][0]:.1f} / {s['dx_cm'][2]:.1f} | {s['flips']} / {s['n']} | "
+            f"{s['median_range_ratio']:.3f} | {s['detection']['tp']} of {s['detection']['tp'] + s['detection']['fn']} |")
+
+
+def check(a) -> None:
+    """One set of networks (--evaluate-args) on composites written earlier and on other BOP sets."""
+    a.out.mkdir(parents=True, exist_ok=True)
+    print("| data | abs dx (cm) mean / median | flips | median est/true range | detected |\n| --- | --- | --- | --- | --- |")
+    for d in a.data:
+        print(_iml_row(str(d), d, a.out / (str(d).strip("/").replace("/", "_") + ".json"), a.evaluate_args), flush=True)
 
 
 def surround(a) -> None:
@@ -135,11 +160,17 @@ def main() -> None:
     c.add_argument("--background", type=Path)
     c.add_argument("--out", type=Path, required=True)
     c.add_argument("--evaluate-args", default="")
+    c.add_argument("--only", nargs="+", default=[])
+    c.add_argument("--lift-dark", type=float, default=0.0)
+    k = sub.add_parser("check")
+    k.add_argument("data", type=Path, nargs="+")
+    k.add_argument("--out", type=Path, required=True)
+    k.add_argument("--evaluate-args", default="")
     s = sub.add_parser("surround")
     s.add_argument("data", type=Path, nargs="+")
     s.add_argument("--runs", type=Path, nargs="+", default=[])
     a = ap.parse_args()
-    composite(a) if a.cmd == "composite" else surround(a)
+    {"composite": composite, "check": check, "surround": surround}[a.cmd](a)
 
 
 if __name__ == "__main__":
