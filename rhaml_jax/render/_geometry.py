@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 
 # A face whose projected area is below this (px^2) covers no pixel centre in practice and has
