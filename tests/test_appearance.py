@@ -376,9 +376,9 @@ def test_dim_room_inside_its_ranges_keeps_dark_parts_dark_and_dims_the_backdrop_
     assert abs(np.mean(g < 1) - 0.5) < 0.07 and np.all((g == 1) | ((g >= CFG.dim_room[0]) & (g <= CFG.dim_room[1])))
     kept = dataclasses.replace(dim, part_grey_prob=0.0, part_recolour_prob=0.0)  # each part its own value, then lifted
     v0 = rgb_to_hsv(GROUPS)[:, 2]
-    v0 = v0[v0 < 1]  # the parts a lift can change (the model's are ordered by colour: white last)
+    can = v0 < 1  # the parts a lift can change
     for lk in (data.sample_look(kept, 8, i, GROUPS) for i in range(200)):
-        lift = (lk.part_hsv[: len(v0), 2] - v0) / (1.0 - v0)
+        lift = (lk.part_hsv[can, 2] - v0[can]) / (1.0 - v0[can])
         lo, hi = CFG.dim_room_lift if lk.room_gain < 1 else CFG.dark_lift
         assert np.all((lift >= lo - 1e-9) & (lift <= hi + 1e-9)), (lk.room_gain, lift)
     mesh = as_mesh(load_robot("pioneer3dx"))

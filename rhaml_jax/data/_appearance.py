@@ -113,15 +113,14 @@ class AppearanceConfig:
       takes its surroundings' mean colour and brightness; its shading and the contrast between
       its parts stay, so its shape is what remains to see. Parts are clipped to [0, 1] and kept
       out of hue_exclude_deg. 0 in the v2 and v3 sets (which it leaves as they were: no draw at 0).
-    Dim surroundings (a robot lit brighter than the room around it, as under ceiling lamps: the
-      networks read the range long when the surroundings are dark, BENCHMARKS.md "The range is read
-      from the surroundings"): with dim_room_prob, the room or photograph behind the robot (with
-      its floor shadows) is multiplied by a gain drawn log-uniformly from dim_room; the robot and
-      the distractors are lit as before, and the robot's parts take their dark_lift from
-      dim_room_lift, so that its dark parts (tyres) stay about as dark as the room around them
-      (lifting them on a black background takes the range read from 22 % long to 7 % short:
-      the networks read the robot's extent from its dark parts' contrast). 0 in the v2 and v3
-      sets (no draw at 0).
+    Dim surroundings (a robot lit brighter than the room around it, as under ceiling lamps): with
+      dim_room_prob, the room or photograph behind the robot (with its floor shadows) is
+      multiplied by a gain drawn log-uniformly from dim_room; the robot and the distractors are
+      lit as before, and the robot's parts take their dark_lift from dim_room_lift, so that its
+      dark parts (tyres) stay about as dark as the room around them. Aimed at the long ranges on
+      dark surroundings, which come from the dark parts' lost contrast; as a fine-tune it did
+      not remove them (BENCHMARKS.md, "Dim rooms in training do not take the long range away").
+      0 in the v2 and v3 sets (no draw at 0).
     """
 
     part_grey_prob: float = 0.15
