@@ -1,10 +1,9 @@
 #!/usr/bin/env bash
 # Issue 18, session 37 (BENCHMARKS.md, "Dim rooms in training do not take the long range away"):
-# the default AMLNet and zoom stage fine-tuned (and a zoom stage from random weights trained) on
-# no-cart v3 images of which 40 % have dim
-# surroundings (`AppearanceConfig.dim_room_prob`, the robot's dark parts kept dark), then the
-# size-cue check on session 36's composites (experiments/size_cue.py composite, written to
-# DATA/size_cue and DATA/size_cue_s2). Every stage resumes (generation is a pure function of
+# the default AMLNet and zoom stage fine-tuned (and a zoom stage trained from random weights) on
+# no-cart v3 images of which 40 % have dim surroundings (`AppearanceConfig.dim_room_prob`, the
+# robot's dark parts kept dark), then the size-cue check on session 36's composites
+# (experiments/size_cue.py composite, written to DATA/size_cue and DATA/size_cue_s2). Every stage resumes (generation is a pure function of
 # (seed, index); the checks keep their runs).
 #   bash experiments/retrain_dim.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
