@@ -1,7 +1,7 @@
 """What the shipped IML reads the range from: the robot's pixels of one scene pasted on other
 backgrounds (same poses, same robot pixels), and how dark the surroundings of the robot are in
-each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read from the contrast
-with the surroundings").
+each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read from the
+surroundings, not from the robot alone" and "Dim rooms in training do not take the long range away").
 
   python experiments/size_cue.py composite --robot A --out OUT [--background B] [--only NAME ...] [--lift-dark L] [--evaluate-args=...]
   python experiments/size_cue.py check DATA [DATA ...] --out OUT [--evaluate-args=...]
