@@ -551,8 +551,8 @@ def _online(rv, cfg: FusionConfig, valid, candidates, gate, heading_deg, flip_pr
             # guard: before the first row in the graph, the last update answers nothing (its graph
             # has no rendezvous), and a candidate would be judged by garbage
             judged = cand[k] & inp.usable[k] & jnp.any(used) & jnp.all(jnp.isfinite(pred))
-            z = jnp.stack([z4[k, 2], z4[k, 3], jnp.arctan2(z4[k, 1], z4[k, 0])])  # row k's observation (x, y, psi)
-            join = join | (judged & agrees(z[None], pred[None], gate, heading_deg)[0])
+            z = se2_to_poses(jaxlie.SE2(z4[k][None]))  # (1, 3) row k's observation (x, y, psi)
+            join = join | (judged & agrees(z, pred[None], gate, heading_deg)[0])
         used = used | (join & (rows == k))
         score = score + jnp.where(join, t.kern[:, :, k], 0.0)
         # a row that does not join adds nothing (same graph, same consensus scores): the last
