@@ -31,7 +31,7 @@ def main() -> None:
     a = ap.parse_args()
 
     from rhaml_jax import crop
-    from rhaml_jax.amlnet.heatmap import STRIDE, net_intrinsics
+    from rhaml_jax.amlnet.heatmap import STRIDE
     from rhaml_jax.camera import DEFAULT_CAMERA, NOMINAL_HEIGHT_M
     from rhaml_jax.data import read_bop
     from rhaml_jax.iml import load_iml
@@ -41,6 +41,7 @@ def main() -> None:
     h, w = net.cfg.input_hw
     net_K = jnp.asarray(DEFAULT_CAMERA.resized(w, h).K, jnp.float32)
     z_ref = float(net.cfg.zoom_centre_z_m)
+    Kn = np.asarray(net_K)  # the heatmap's camera (`heatmap.net_intrinsics` of its grid)
 
     @jax.jit
     def peak(image, K):  # (H, W, 3) uint8 -> (o, range head, u, v) in the network image
@@ -62,7 +63,6 @@ def main() -> None:
             o, r, u, v = (float(t) for t in peak(np.asarray(Image.open(f.rgb).convert("RGB")), jnp.asarray(f.K, jnp.float32)))
             if o < 0.5:
                 continue
-            Kn = net_intrinsics((h // STRIDE, w // STRIDE))
             t = np.asarray(f.T_m2c)[:3, 3]  # the observed robot's origin in the camera frame (z: depth)
             true_r = float(np.hypot(t[2], t[0]))
             bearing_x = (u - Kn[0, 2]) / Kn[0, 0]  # optical x / z of the peak's ray
