@@ -27,7 +27,10 @@ for n in aml_dim2 zoom_dim2 zoom_scratch; do
   [ -d "$RUNS/export/$n" ] || "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/$n', '$RUNS/export/$n')"
 done
 SETS=("$DATA"/size_cue/uniform_{grey,black} "$DATA"/size_cue/other_room "$DATA"/size_cue_s2/uniform_{grey,black} "$DATA"/val_ood/sine "$DATA"/val_ood_s2/sine)
-cue() { "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_$1" --evaluate-args="$2"; }
+cue() {  # the checks, then the held-out set (reported only)
+  "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_$1" --evaluate-args="$2"
+  "$PY" experiments/size_cue.py check "$DATA"/heldout/{circle,sine} --out "$RUNS/heldout_$1" --evaluate-args="$2"
+}
 cue default_nozoom "--no-zoom"
 cue aml_dim2_nozoom "--no-zoom --amlnet $RUNS/export/aml_dim2"
 cue default ""
