@@ -2,6 +2,7 @@
 gradients, and the network at test size (`tiny_heat`)."""
 
 import dataclasses
+import tempfile
 
 import jax
 import jax.numpy as jnp
@@ -187,26 +188,49 @@ def test_chroma_contrast_reads_chroma_but_no_hue_or_tint():
     np.testing.assert_allclose(out, out_turned, atol=1e-4 * np.abs(out).max())
 
 
-def test_a_luma_checkpoint_starts_a_chroma_network_exactly():
-    """`initial_weights` moves the third luminance channel's stem weights onto the first: the
-    chroma network starts with the luma network's outputs; chroma needs luma and an odd window."""
+@pytest.mark.parametrize("name, channel", [("cpu_heat_chroma", 2), ("cpu_heat_log", 1)])
+def test_a_luma_checkpoint_starts_a_chroma_or_log_network_exactly(name, channel):
+    """`initial_weights` moves the freed luminance copy's stem weights onto the first: the chroma
+    or log-luminance network starts with the luma network's outputs, and cannot start a network
+    without its channel; both channels need luma, the chroma window is odd."""
     from rhaml_jax.amlnet import shipped_checkpoint
     from rhaml_jax.amlnet.checkpoint import load_model
-    from rhaml_jax.amlnet.trainer import chroma_from_luma, initial_weights
+    from rhaml_jax.amlnet.trainer import initial_weights, luma_channel_freed
     from rhaml_jax.errors import RhamlError
 
     net0, p0, s0 = load_model(shipped_checkpoint("heat_nocart_cpu"))
-    cfg = get_config("cpu_heat_chroma")
+    cfg = get_config(name)
     p1, s1 = initial_weights(cfg, shipped_checkpoint("heat_nocart_cpu"))
     net1 = build(cfg, abstract=True)
     x = jnp.asarray(np.random.default_rng(2).random((1, *cfg.input_hw, 3)), jnp.float32)
     a, b = np.asarray(net0.apply(p0, s0, x)), np.asarray(net1.apply(p1, s1, x))
     np.testing.assert_allclose(a, b, atol=1e-5 * np.abs(a).max())
-    assert np.abs(np.asarray(p1["stem"][...])[:, :, 2]).max() == 0
+    assert np.abs(np.asarray(p1["stem"][...])[:, :, channel]).max() == 0
     before = np.asarray(p0["stem"][...]).copy()
-    chroma_from_luma(p0)
+    luma_channel_freed(p0, channel)
     np.testing.assert_array_equal(np.asarray(p0["stem"][...]), before)  # the caller's state is left as it was
-    with pytest.raises(RhamlError, match="chroma .* needs luma"):
+    with pytest.raises(RhamlError, match="needs luma"):
         dataclasses.replace(cfg, luma=False)
     with pytest.raises(RhamlError, match="chroma_window must be odd"):
-        dataclasses.replace(cfg, chroma_window=4)
+        dataclasses.replace(get_config("cpu_heat_chroma"), chroma_window=4)
+    with tempfile.TemporaryDirectory() as d:  # a checkpoint with the channel cannot start one without it
+        from rhaml_jax.amlnet.checkpoint import Checkpoints
+        from rhaml_jax.amlnet.config import config_to_dict
+
+        ck = Checkpoints(d, keep=1)
+        ck.save(0, {"params": p1, "batch_stats": s1}, {"model_config": config_to_dict(cfg), "weights_only": True})
+        ck.close()
+        with pytest.raises(RhamlError, match="cannot start 'cpu_heat'"):
+            initial_weights(get_config("cpu_heat"), d)
+
+
+def test_log_luminance_reads_ratios():
+    """The log-luminance channel: equal brightness ratios give equal differences (tyres at 2 %
+    on a floor at 6 % as a body at 20 % on a floor at 60 %, up to the floor of the log), and a
+    dark image's outline stays as strong as a light one's."""
+    from rhaml_jax.amlnet.model import LOG_FLOOR, log_luminance
+
+    f = lambda v: float(log_luminance(jnp.asarray(v, jnp.float32)))  # noqa: E731
+    assert f(0.6) - f(0.2) == pytest.approx(np.log(0.62 / 0.22), rel=1e-5)
+    assert f(0.06 - LOG_FLOOR) - f(0.02 - LOG_FLOOR) == pytest.approx(f(0.6 - LOG_FLOOR) - f(0.2 - LOG_FLOOR), rel=1e-5)
+    assert np.isfinite(f(0.0))

@@ -81,6 +81,11 @@ class AMLNetConfig:
       the whole image changes it little, but a robot whose colour differs from its surroundings
       stands out where its luminance does not. A luma checkpoint starts a chroma one exactly
       (`trainer.initial_weights` moves the third channel's stem weights onto the first).
+    log_luma: with luma, the second channel carries the log luminance instead (`model.
+      log_luminance`): a ratio of brightnesses, so black tyres on a dim floor differ as much as a
+      red body on a grey one, and the robot's outline does not shrink where the light is low (the
+      range read long on dark surroundings, issue 18). A luma checkpoint starts it exactly, as for
+      chroma (the second channel's weights go onto the first).
     """
 
     name: str
@@ -105,12 +110,15 @@ class AMLNetConfig:
     luma: bool = False
     chroma: bool = False
     chroma_window: int = 15
+    log_luma: bool = False
     kind: Literal["amlnet"] = "amlnet"
 
     def __post_init__(self):
         n = len(self.depths)
         if self.chroma and not self.luma:
             raise RhamlError(f"config {self.name}: chroma (the local chroma contrast channel) needs luma")
+        if self.log_luma and not self.luma:
+            raise RhamlError(f"config {self.name}: log_luma (the log luminance channel) needs luma")
         if self.chroma_window < 1 or self.chroma_window % 2 == 0:
             raise RhamlError(f"config {self.name}: chroma_window must be odd and positive, got {self.chroma_window}")
         if not (len(self.dims) == len(self.mlp_ratios) == n and n >= 1):
@@ -226,6 +234,9 @@ CONFIGS: dict[str, ModelConfig] = {
     "cpu_heat_chroma": _amlnet("cpu_heat_chroma", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128),
                                mlp_ratios=(4, 4, 4), angle_head="cossin", head="heatmap", luma=True, chroma=True,
                                layer_scale_init=0.1),
+    "cpu_heat_log": _amlnet("cpu_heat_log", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128),
+                            mlp_ratios=(4, 4, 4), angle_head="cossin", head="heatmap", luma=True, log_luma=True,
+                            layer_scale_init=0.1),
     "frontnet": FrontNetConfig("frontnet"),
     "tiny": _amlnet("tiny", **_TINY),
     "tiny_dw": _amlnet("tiny_dw", acn_dense=False, **_TINY),

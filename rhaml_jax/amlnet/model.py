@@ -70,6 +70,16 @@ def chroma_contrast(images, window: int):
     return jnp.sqrt(d2 + 1e-6)  # guard: sqrt's gradient is infinite at 0 (a flat region)
 
 
+LOG_FLOOR = 0.02  # about 5 levels of 8 bits: below it the ratio of two pixels is camera noise and JPEG
+LOG_OFFSET = 1.5  # log(luma + floor), in [-3.9, 0.02], moved onto the normalised luminance's range
+
+
+def log_luminance(luma):
+    """(B, H, W) log of the luminance `luma` (B, H, W) in [0, 1], floored and offset: equal
+    brightness ratios give equal differences, in the dark as in the light."""
+    return jnp.log(luma + LOG_FLOOR) + LOG_OFFSET
+
+
 def normalize_images(images):
     return (images - jnp.asarray(IMAGENET_MEAN, images.dtype)) / jnp.asarray(IMAGENET_STD, images.dtype)
 
@@ -115,7 +125,10 @@ class AMLNet(nnx.Module):
         patch = ops.patchify if impl == "fast" else ops.patchify_ref
         x = images
         if self.cfg.luma:
-            x = normalize_images(jnp.repeat(images @ jnp.asarray(LUMA, images.dtype)[:, None], 3, axis=-1))
+            luma = images @ jnp.asarray(LUMA, images.dtype)
+            x = normalize_images(jnp.repeat(luma[..., None], 3, axis=-1))
+            if self.cfg.log_luma:
+                x = x.at[..., 1].set(log_luminance(luma))
             if self.cfg.chroma:
                 x = x.at[..., 2].set(CHROMA_GAIN * chroma_contrast(images, self.cfg.chroma_window))
         else:

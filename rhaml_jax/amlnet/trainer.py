@@ -125,36 +125,40 @@ def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]
     the fields that change no weight: its name, input colours (`luma`: a colour network can start
     a luminance one) and the zoom crop's geometry (`zoom_length_m`, `zoom_centre_z_m`,
     `zoom_factor`: one robot's zoom stage can start another's); a luminance network starts a
-    `chroma` one with the same outputs (`chroma_from_luma`)."""
+    `chroma` or `log_luma` one with the same outputs (`luma_channel_freed`)."""
     if not (Path(init) / "checkpoints").is_dir():
         raise RhamlError(f"--init {init}: not a checkpoint folder (no checkpoints/ inside)")
     net, params, stats = load_model(init)
-    free = {k: getattr(cfg, k) for k in WEIGHTLESS_FIELDS + ("chroma", "chroma_window") if hasattr(cfg, k)}
+    free = {k: getattr(cfg, k) for k in WEIGHTLESS_FIELDS + ("chroma", "chroma_window", "log_luma") if hasattr(cfg, k)}
     if type(net.cfg) is not type(cfg) or replace(net.cfg, name=cfg.name, **free) != cfg:
         mine, theirs = config_to_dict(cfg), config_to_dict(net.cfg)
         differ = sorted(k for k in set(mine) | set(theirs) if k != "name" and k not in free and mine.get(k) != theirs.get(k))
         raise RhamlError(f"--init {init}: holds model config {net.cfg.name!r}, not the {cfg.name!r} being trained "
                          f"(they differ in {', '.join(differ) or 'kind'})")
-    if getattr(cfg, "chroma", False) and not net.cfg.chroma:
-        if not net.cfg.luma:
-            raise RhamlError(f"--init {init}: a colour network cannot start {cfg.name!r} (chroma needs a luma network)")
-        params = chroma_from_luma(params)
+    for field, channel in (("chroma", 2), ("log_luma", 1)):  # an input channel the checkpoint did not see
+        new, old = getattr(cfg, field, False), getattr(net.cfg, field, False)
+        if old and not new:
+            raise RhamlError(f"--init {init}: a {field} network cannot start {cfg.name!r}, which has no {field} channel")
+        if new and not old:
+            if not net.cfg.luma:
+                raise RhamlError(f"--init {init}: a colour network cannot start {cfg.name!r} ({field} needs a luma network)")
+            params = luma_channel_freed(params, channel)
     return params, stats
 
 
-def chroma_from_luma(params):
+def luma_channel_freed(params, channel: int):
     """The stem of a luminance network (three normalised copies of the luminance in) rewritten
-    for the chroma input (the third copy replaced by the chroma contrast) so that the outputs
-    are unchanged: the third channel's weights go onto the first (rescaled to its
+    so that copy `channel` (1 or 2) can carry another input (the log luminance, the chroma
+    contrast) with the outputs unchanged: its weights go onto the first copy (rescaled to its
     normalisation, the offset into the bias) and start at zero."""
     from rhaml_jax.amlnet.model import IMAGENET_MEAN as M, IMAGENET_STD as S
 
     w, b = np.asarray(params["stem"][...]), np.asarray(params["stem_b"][...])  # (4, 4, 3, C), (C,)
-    w2 = w[:, :, 2, :]
+    wc = w[:, :, channel, :]
     new_w = w.copy()
-    new_w[:, :, 0, :] += w2 * S[0] / S[2]  # luminance = S0 n0 + M0, where n0 is channel 0's input
-    new_w[:, :, 2, :] = 0.0
-    new_b = b + w2.sum((0, 1)) * (M[0] - M[2]) / S[2]
+    new_w[:, :, 0, :] += wc * S[0] / S[channel]  # luminance = S0 n0 + M0 = Sc nc + Mc, nc channel c's input
+    new_w[:, :, channel, :] = 0.0
+    new_b = b + wc.sum((0, 1)) * (M[0] - M[channel]) / S[channel]
     params = jax.tree.map(lambda x: x, params)  # a copy: the caller's state stays as loaded
     params["stem"] = params["stem"].replace(jnp.asarray(new_w, params["stem"][...].dtype))
     params["stem_b"] = params["stem_b"].replace(jnp.asarray(new_b, params["stem_b"][...].dtype))
