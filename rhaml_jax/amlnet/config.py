@@ -19,6 +19,8 @@ Named configs
   image (twice `cpu`'s resolution), three stages (1, 1, 2) of (32, 64, 128) with the paper's
   ACN, 0.38 M parameters, 0.22 GMACs: the first stage for images our renderer did not make
   (issue 18); ``zoom_cpu_luma``: `zoom_cpu` on luminance crops, its partner.
+- ``cpu_heat_chroma``, ``cpu_heat_log``, ``zoom_cpu_log``: the same networks with the chroma
+  contrast or the log luminance in place of one luminance copy (fields `chroma`, `log_luma`).
 - ``frontnet``: the PULP-Frontnet baseline (0.32 M parameters, 0.066 GMACs at 224 x 224).
 - ``tiny``, ``tiny_dw``, ``tiny_k0``, ``tiny_zoom``, ``tiny_heat``, ``micro``, ``tiny_frontnet``: test-size networks (XLA's CPU
   compiler needs ~0.1 s per fused kernel, so tests use the smallest networks that cover the code).
@@ -229,6 +231,9 @@ CONFIGS: dict[str, ModelConfig] = {
     "zoom_cpu_luma": _amlnet("zoom_cpu_luma", task="zoom", input_hw=(64, 64), depths=(1, 1, 3, 1), dims=(32, 64, 128, 256),
                              mlp_ratios=(4, 4, 4, 3), neck=(256,), pool="flatten", angle_head="axis", layer_scale_init=0.1,
                              luma=True),
+    "zoom_cpu_log": _amlnet("zoom_cpu_log", task="zoom", input_hw=(64, 64), depths=(1, 1, 3, 1), dims=(32, 64, 128, 256),
+                            mlp_ratios=(4, 4, 4, 3), neck=(256,), pool="flatten", angle_head="axis", layer_scale_init=0.1,
+                            luma=True, log_luma=True),
     "cpu_heat": _amlnet("cpu_heat", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128), mlp_ratios=(4, 4, 4),
                         angle_head="cossin", head="heatmap", luma=True, layer_scale_init=0.1),
     "cpu_heat_chroma": _amlnet("cpu_heat_chroma", input_hw=(256, 320), depths=(1, 1, 2), dims=(32, 64, 128),

@@ -139,9 +139,7 @@ def initial_weights(cfg: ModelConfig, init: str | Path) -> tuple[object, object]
         new, old = getattr(cfg, field, False), getattr(net.cfg, field, False)
         if old and not new:
             raise RhamlError(f"--init {init}: a {field} network cannot start {cfg.name!r}, which has no {field} channel")
-        if new and not old:
-            if not net.cfg.luma:
-                raise RhamlError(f"--init {init}: a colour network cannot start {cfg.name!r} ({field} needs a luma network)")
+        if new and not old:  # exact for the luminance copies `cfg` sees (it has luma), whatever `net` saw
             params = luma_channel_freed(params, channel)
     return params, stats
 
