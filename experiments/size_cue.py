@@ -6,6 +6,7 @@ surroundings, not from the robot alone" and "Dim rooms in training do not take t
   python experiments/size_cue.py composite --robot A --out OUT [--background B] [--only NAME ...] [--lift-dark L] [--evaluate-args=...]
   python experiments/size_cue.py check DATA [DATA ...] --out OUT [--evaluate-args=...]
   python experiments/size_cue.py surround DATA [DATA ...] [--runs EVAL.json ...]
+  python experiments/size_cue.py brighten DATA OUT [--target 0.35] [--min-exponent 0.4]
 
 composite: A and B are BOP scenes of the same poses (e.g. the OOD validation sine of seeds 1 and
 2). Writes OUT/<name>, a copy of A whose images keep A's robot pixels (its visible mask) on a
@@ -27,6 +28,10 @@ the share of frames where the surroundings are darker than that tenth plus 0.1, 
 dark (surroundings under 0.1, the darkest tenth under 0.05). With --runs (one
 `evaluate --json` run per DATA), also the median IML est/true range in each quarter of the frames
 by the luma around the robot (detected frames).
+
+brighten: a copy of the BOP set DATA in OUT whose every image is brightened by a gamma curve,
+255 (v / 255)^p per channel, p chosen per image to bring its median luma to --target (only
+brightening: p in [--min-exponent, 1]); a test-time tone normalisation, to be run through `check`.
 """
 
 from __future__ import annotations
@@ -152,6 +157,22 @@ def surround(a) -> None:
               f"{np.mean(around < dark + 0.1):.0%} | {np.mean((around < 0.1) & (dark < 0.05)):.0%} |{cells}", flush=True)
 
 
+def brighten(a) -> None:
+    if a.out.exists():
+        raise SystemExit(f"{a.out}: exists; brighten writes a new copy")
+    shutil.copytree(a.data, a.out, ignore=shutil.ignore_patterns("rgb"))
+    for rgb in sorted(a.data.glob("test/*/rgb")):
+        dst = a.out / rgb.relative_to(a.data)
+        dst.mkdir()
+        exps = []
+        for f in sorted(rgb.iterdir()):
+            x = np.asarray(Image.open(f).convert("RGB")).astype(np.float32) / 255.0
+            m = max(float(np.median(_luma(x * 255.0))), 1e-3)  # guard: log(0) for a black image
+            exps.append(float(np.clip(np.log(a.target) / np.log(m), a.min_exponent, 1.0)))
+            Image.fromarray((255.0 * x ** exps[-1] + 0.5).astype(np.uint8)).save(dst / f.name)
+        print(f"{rgb}: exponent median {np.median(exps):.2f}, min {np.min(exps):.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -169,8 +190,13 @@ def main() -> None:
     s = sub.add_parser("surround")
     s.add_argument("data", type=Path, nargs="+")
     s.add_argument("--runs", type=Path, nargs="+", default=[])
+    b = sub.add_parser("brighten")
+    b.add_argument("data", type=Path)
+    b.add_argument("out", type=Path)
+    b.add_argument("--target", type=float, default=0.35)
+    b.add_argument("--min-exponent", type=float, default=0.4)
     a = ap.parse_args()
-    {"composite": composite, "check": check, "surround": surround}[a.cmd](a)
+    {"composite": composite, "check": check, "surround": surround, "brighten": brighten}[a.cmd](a)
 
 
 if __name__ == "__main__":
