@@ -20,11 +20,14 @@ fi
   --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/aml_log/checkpoints" ] && echo --resume )
 [ -d "$RUNS/export/aml_log" ] || "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/aml_log', '$RUNS/export/aml_log')"
 SETS=("$DATA"/s38_sc/uniform_{grey,black} "$DATA"/s38_sc/other_room "$DATA"/s38_sc2/uniform_{grey,black} "$DATA"/val_ood/sine "$DATA"/val_ood_s2/sine)
-cue() { "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_$1" --evaluate-args="$2"; }
+cue() {  # the checks, then the held-out set (reported only)
+  "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_$1" --evaluate-args="$2"
+  "$PY" experiments/size_cue.py check "$DATA"/heldout/{circle,sine} --out "$RUNS/heldout_$1" --evaluate-args="$2"
+}
 cue aml_log_nozoom "--no-zoom --amlnet $RUNS/export/aml_log"
 "$PY" -m rhaml_jax.train --stage zoom --config zoom_cpu_log --data "$DATA/s37_dim2_train" --out "$RUNS/zoom_log" \
   --init rhaml_jax/checkpoints/zoom_fit_cpu --lr 5e-4 --warmup 100 --steps 3000 --batch 32 --val-every 1000 \
   --ckpt-every 500 --val-batches 8 --w-xy 69.4 526 --no-progress $( [ -d "$RUNS/zoom_log/checkpoints" ] && echo --resume )
 [ -d "$RUNS/export/zoom_log" ] || "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/zoom_log', '$RUNS/export/zoom_log')"
-cue aml_log "--amlnet $RUNS/export/aml_log"
+cue aml_log "--amlnet $RUNS/export/aml_log --zoom rhaml_jax/checkpoints/zoom_fit_cpu"
 cue log_pair "--amlnet $RUNS/export/aml_log --zoom $RUNS/export/zoom_log"
