@@ -9,11 +9,7 @@
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s37}"
 PY="${PYTHON:-python}"
-if [ ! -f "$DATA/s37_dim2_train/.complete" ]; then
-  "$PY" -m rhaml_jax.generate --out "$DATA/s37_dim2_train" --num 5250 --negatives 750 --width 320 --height 256 --workers 2 \
-    --seed 37 --ranges.repaint-prob 0.5 --ranges.cart-prob 0 --ranges.dim-room-prob 0.4
-  touch "$DATA/s37_dim2_train/.complete"
-fi
+bash experiments/dim_room_data.sh "$DATA"
 "$PY" -m rhaml_jax.train --stage amlnet --config cpu_heat --data "$DATA/s37_dim2_train" --out "$RUNS/aml_dim2" \
   --init rhaml_jax/checkpoints/heat_nocart_cpu --lr 5e-4 --warmup 100 --steps 1500 --batch 32 --val-every 500 \
   --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/aml_dim2/checkpoints" ] && echo --resume )

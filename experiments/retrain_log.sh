@@ -4,21 +4,20 @@
 # zoom_cpu_log; started exactly from the defaults), on session 37's no-cart v3 images with 40 % dim
 # surroundings, with session 37's steps, rates and seed (its cpu_heat / zoom_cpu_luma runs are
 # the controls: experiments/retrain_dim.sh); then the size-cue check (experiments/size_cue.py
-# composite, written to DATA/s38_sc and DATA/s38_sc2; the defaults' rows are session 37's, which
-# the composites reproduce exactly: `size_cue.py composite` prints them). Every stage resumes.
+# composite, written to DATA/s38_sc and DATA/s38_sc2, which prints the defaults' rows). Every
+# stage resumes.
 #   bash experiments/retrain_log.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s38}"
 PY="${PYTHON:-python}"
-if [ ! -f "$DATA/s37_dim2_train/.complete" ]; then
-  "$PY" -m rhaml_jax.generate --out "$DATA/s37_dim2_train" --num 5250 --negatives 750 --width 320 --height 256 --workers 2 \
-    --seed 37 --ranges.repaint-prob 0.5 --ranges.cart-prob 0 --ranges.dim-room-prob 0.4
-  touch "$DATA/s37_dim2_train/.complete"
-fi
+bash experiments/dim_room_data.sh "$DATA"
 "$PY" -m rhaml_jax.train --stage amlnet --config cpu_heat_log --data "$DATA/s37_dim2_train" --out "$RUNS/aml_log" \
   --init rhaml_jax/checkpoints/heat_nocart_cpu --lr 5e-4 --warmup 100 --steps 1500 --batch 32 --val-every 500 \
   --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/aml_log/checkpoints" ] && echo --resume )
 [ -d "$RUNS/export/aml_log" ] || "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/aml_log', '$RUNS/export/aml_log')"
+"$PY" experiments/size_cue.py composite --robot "$DATA/val_ood/sine" --background "$DATA/val_ood_s2/sine" --out "$DATA/s38_sc" \
+  --only "uniform black" "uniform grey" "other room"     # the default IML's rows; kept runs are skipped
+"$PY" experiments/size_cue.py composite --robot "$DATA/val_ood_s2/sine" --out "$DATA/s38_sc2" --only "uniform black" "uniform grey"
 SETS=("$DATA"/s38_sc/uniform_{grey,black} "$DATA"/s38_sc/other_room "$DATA"/s38_sc2/uniform_{grey,black} "$DATA"/val_ood/sine "$DATA"/val_ood_s2/sine)
 cue() {  # the checks, then the held-out set (reported only)
   "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_$1" --evaluate-args="$2"
