@@ -166,8 +166,9 @@ def brighten(a) -> None:
         dst.mkdir()
         exps = []
         for f in sorted(rgb.iterdir()):
-            x = np.asarray(Image.open(f).convert("RGB")).astype(np.float32) / 255.0
-            m = max(float(np.median(_luma(x * 255.0))), 1e-3)  # guard: log(0) for a black image
+            rgb8 = np.asarray(Image.open(f).convert("RGB"))
+            x = rgb8.astype(np.float32) / 255.0
+            m = max(float(np.median(_luma(rgb8))), 1e-3)  # guard: log(0) for a black image
             exps.append(float(np.clip(np.log(a.target) / np.log(m), a.min_exponent, 1.0)))
             Image.fromarray((255.0 * x ** exps[-1] + 0.5).astype(np.uint8)).save(dst / f.name)
         print(f"{rgb}: exponent median {np.median(exps):.2f}, min {np.min(exps):.2f}")
