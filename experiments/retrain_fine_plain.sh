@@ -3,18 +3,21 @@
 # refiner (refiner_fine_cpu) trained on plain-look (v1) crops only, from fine starts: 3,200
 # images at 640 x 480 (two generate runs, seeds 391 and 392, mixed by symlinks), 10,000 steps
 # at batch 16 from the shipped weights; the 3,000-step probe first (on the first 800 images);
-# then the cascade from the paper's noise on 2 x 100 validation frames (our look, seeds 7 and 8;
-# experiments/bench_refine.py). Every stage resumes.
+# a control on the same images plus 1,600 randomised-look (v3) ones; then the cascade from the
+# paper's noise on 2 x 100 validation frames (our look, seeds 7 and 8; experiments/bench_refine.py).
+# Every stage resumes.
 #   bash experiments/retrain_fine_plain.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s39}"
 PY="${PYTHON:-python}"
-gen() {  # out seed count
-  [ -f "$DATA/$1/.complete" ] || { "$PY" -m rhaml_jax.generate --out "$DATA/$1" --num "$3" --negatives 0 --appearance v1 --seed "$2" --workers 1; touch "$DATA/$1/.complete"; }
+gen() {  # out seed count look-args
+  [ -f "$DATA/$1/.complete" ] || { "$PY" -m rhaml_jax.generate --out "$DATA/$1" --num "$3" --negatives 0 --seed "$2" --workers 1 ${@:4}; touch "$DATA/$1/.complete"; }
 }
-gen s39_refine_v1 391 800
-gen s39_refine_v1b 392 2400
+gen s39_refine_v1 391 800 --appearance v1
+gen s39_refine_v1b 392 2400 --appearance v1
+gen s39_refine_v3 393 1600 --ranges.repaint-prob 0.5      # the randomised look (fit's v3) of the control
 [ -d "$DATA/s39_refine_v1mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s39_refine_v1mix" "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b"
+[ -d "$DATA/s39_refine_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s39_refine_mix" "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b" "$DATA/s39_refine_v3"
 train() {  # data run steps val_batches val_every
   "$PY" -m rhaml_jax.train --stage refiner --config refiner_fine_cpu --data "$DATA/$1" --out "$RUNS/$2" \
     --init rhaml_jax/checkpoints/refiner_fine_cpu --lr 3e-4 --warmup 100 --steps "$3" --batch 16 --seed 39 \
@@ -23,6 +26,7 @@ train() {  # data run steps val_batches val_every
 }
 train s39_refine_v1 fine_v1 3000 4 500
 train s39_refine_v1mix fine_v1long 10000 8 1000
+train s39_refine_mix fine_mix 10000 8 1000           # the control: the same steps with a third of the images randomised
 bench() {  # label fine-refiner [bench args]
   local label=$1 fine=$2; shift 2
   for s in 7 8; do
@@ -34,3 +38,4 @@ bench() {  # label fine-refiner [bench args]
 bench default rhaml_jax/checkpoints/refiner_fine_cpu
 bench fine_v1 "$RUNS/export/fine_v1"
 bench fine_v1long "$RUNS/export/fine_v1long"
+bench fine_mix "$RUNS/export/fine_mix"
