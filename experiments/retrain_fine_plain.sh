@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Issue 15, session 39 (BENCHMARKS.md, "The fine refiner on the plain look"): the shipped fine
-# refiner (refiner_fine_cpu) trained on plain-look (v1) crops only, from fine starts: 3,200
-# images at 640 x 480 (two generate runs, seeds 391 and 392, mixed by symlinks), 10,000 steps
-# at batch 16 from the shipped weights; the 3,000-step probe first (on the first 800 images);
-# a control on the same images plus 1,600 randomised-look (v3) ones; then the cascade from the
-# paper's noise on 2 x 100 validation frames (our look, seeds 7 and 8; experiments/bench_refine.py).
-# Every stage resumes.
+# Issue 15, session 39 (BENCHMARKS.md, "The fine refiner trained longer"): the shipped fine
+# refiner (refiner_fine_cpu) trained 10,000 more steps at batch 16 from fine starts, on 3,200
+# plain-look (v1) images at 640 x 480 (two generate runs, seeds 391 and 392, mixed by symlinks;
+# run fine_v1long) and on those plus 1,600 randomised-look (v3) ones (run fine_mix: exported as
+# rhaml_jax/checkpoints/refiner_fine_long_cpu, the default); a 3,000-step probe on the first 800
+# plain-look images first (fine_v1); then the cascade from the paper's noise on 2 x 100 validation
+# frames (our look, seeds 7 and 8; experiments/bench_refine.py). Every stage resumes.
 #   bash experiments/retrain_fine_plain.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s39}"

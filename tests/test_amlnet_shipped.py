@@ -103,8 +103,8 @@ def test_default_iml_localises_rendered_robots():
     assert np.median(dpsi) < 15.0, np.sort(dpsi)
 
 
-@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, DEFAULT_FINE_REFINER, "refiner_cpu", "refiner_fit167_cpu",
-                                         "refiner_fit180_cpu"}))
+@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, DEFAULT_FINE_REFINER, "refiner_cpu", "refiner_fine_cpu",
+                                         "refiner_fit167_cpu", "refiner_fit180_cpu"}))
 def test_shipped_refiner_size_and_robot(name):
     """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and the others): within the size
     budget, finite, the Pioneer's (another robot is refused)."""
@@ -119,8 +119,9 @@ def test_shipped_refiner_size_and_robot(name):
     assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
     robot = load_robot("pioneer3dx")
     refiner = load_refiner(path, robot)
-    assert refiner.cfg.name == ("refiner_fine_cpu" if name == DEFAULT_FINE_REFINER else "refiner_cpu")
-    assert refiner.cfg.starts == ("fine" if name == DEFAULT_FINE_REFINER else "coarse")
+    fine = name in (DEFAULT_FINE_REFINER, "refiner_fine_cpu")  # a cascade's second stage
+    assert refiner.cfg.name == ("refiner_fine_cpu" if fine else "refiner_cpu")
+    assert refiner.cfg.starts == ("fine" if fine else "coarse")
     assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(refiner.params))
     with pytest.raises(RhamlError, match="refiner checkpoint is for robot"):
         load_refiner(path, dataclasses.replace(robot, vertices=robot.vertices * 1.5))

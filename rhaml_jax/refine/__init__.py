@@ -325,9 +325,10 @@ validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit
 it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
 
 
-DEFAULT_FINE_REFINER = "refiner_fine_cpu"
-"""the shipped cascade's fine refiner (`RefinerConfig.starts` "fine"), run after `DEFAULT_REFINER`
-unless another refiner is given (chosen on validation: BENCHMARKS.md, "A fine refiner")"""
+DEFAULT_FINE_REFINER = "refiner_fine_long_cpu"
+"""the shipped cascade's fine refiner (config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"), run
+after `DEFAULT_REFINER` unless another refiner is given (chosen on validation: BENCHMARKS.md, "The
+fine refiner trained longer"; session 29's `refiner_fine_cpu`, "A fine refiner", ships beside it)"""
 
 
 def shipped_refiner(model=None) -> Refiner:
