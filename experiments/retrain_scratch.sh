@@ -4,7 +4,7 @@
 # from random weights, with the step count of the default's first phase (4,000 at batch 32, the
 # default rate), on session 38's probe set: session 37's no-cart v3 images (40 % dim surroundings)
 # with the robot's dark parts inpainted in a quarter of them (experiments/inpaint_dark.py); then
-# session 38's size-cue check without the zoom stage (its default rows: RUNS_S38/cue_default_nozoom)
+# session 38's size-cue check without the zoom stage, and the default AMLNet's rows beside it (RUNS/cue_default_nozoom)
 # and the held-out set (reported only). Every stage resumes.
 #   bash experiments/retrain_scratch.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
@@ -17,5 +17,6 @@ PY="${PYTHON:-python}"
 [ -d "$RUNS/export/aml_scratch" ] || "$PY" -c "from rhaml_jax.amlnet import export_weights as e; e('$RUNS/aml_scratch', '$RUNS/export/aml_scratch')"
 SETS=("$DATA"/s38_sc/uniform_{grey,black} "$DATA"/s38_sc/other_room "$DATA"/s38_sc2/uniform_{grey,black} "$DATA"/val_ood/sine "$DATA"/val_ood_s2/sine)
 "$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_aml_scratch_nozoom" --evaluate-args="--no-zoom --amlnet $RUNS/export/aml_scratch"
+"$PY" experiments/size_cue.py check "${SETS[@]}" --out "$RUNS/cue_default_nozoom" --evaluate-args="--no-zoom"   # the control
 "$PY" experiments/size_cue.py check "$DATA"/heldout/{circle,sine} --out "$RUNS/heldout_aml_scratch_nozoom" \
   --evaluate-args="--no-zoom --amlnet $RUNS/export/aml_scratch"
