@@ -65,6 +65,8 @@ class Args:
     """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
     fine_iter: int = 1
     """with --fine-refiner: `RefineConfig.fine_iter`"""
+    n_iter: int | None = None
+    """with --refiner: `RefineConfig.n_iter`, its learned iterations (None: the refiner's config, 4)"""
     oracle_from_learned: bool = False
     """with --refiner: also align to the ground-truth masks from the learned iterations' last pose
     (what a perfect mask would add after them)"""
@@ -102,7 +104,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     """Rows after each learned iteration (with a scorer: then after the heading search and the
     post iterations; with a fine refiner: then after each of its iterations) and, with
     --align-predicted, after the alignment to the predicted mask."""
-    rc = RefineConfig(align=None, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
+    rc = RefineConfig(align=None, n_iter=a.n_iter, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
                       fine_views=a.fine_views, max_final_step=a.max_final_step, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
     f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc, fine=fine))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
@@ -125,7 +127,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     its = np.stack(its)
     per_frame.append({"start": name, "gt": gt.tolist(), "learned_iterates": its.tolist(), "flip_prob": flip_prob, "converged": conv,
                       **({"learned_aligned": np.stack(est).tolist()} if est else {})})
-    n_iter = ref.cfg.n_iter
+    n_iter = ref.cfg.n_iter if a.n_iter is None else a.n_iter
     names = ["start"] + [f"learned iteration {k}" for k in range(1, n_iter + 1)]
     if sc is not None:
         names += ["heading search (scorer)"] + [f"post iteration {k}" for k in range(1, a.post_iter + 1)]

@@ -71,6 +71,8 @@ class Args:
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
     the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; "none": without;
     default: the shipped `refine.DEFAULT_FINE_REFINER` when --refiner is not given, else none)"""
+    fine_iter: int | None = None
+    """the ir module's iterations of the fine refiner (`RefineConfig.fine_iter`; None: its default)"""
     max_final_step: float | None = 0.01
     """the ir module's convergence check (`RefineConfig.max_final_step`): where the refiner's last
     coarse iteration moves the range by more than this fraction, IML's estimate stands; None: off"""
@@ -152,7 +154,8 @@ def _load(args: Args, modules):
 
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
                                                     segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner)
-        refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step)
+        refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step,
+                                      fine_iter=refiner.fine_iter if args.fine_iter is None else args.fine_iter)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   calibrate_range=not args.no_range_calibration,

@@ -139,3 +139,5 @@ def test_the_convergence_check_option_follows_the_library():
     assert tyro.cli(Args, args=["--data", "x"]).max_final_step == RefineConfig().max_final_step
     assert tyro.cli(Args, args=["--data", "x", "--max-final-step", "None"]).max_final_step is None
     assert tyro.cli(Args, args=["--data", "x", "--max-final-step", "0.02"]).max_final_step == 0.02
+    assert tyro.cli(Args, args=["--data", "x"]).fine_iter is None  # the library's RefineConfig.fine_iter
+    assert tyro.cli(Args, args=["--data", "x", "--fine-iter", "2"]).fine_iter == 2

@@ -308,9 +308,11 @@ def test_fine_views_average_the_fine_refiner_from_starts_around_the_pose(run, bo
     psi = np.arctan2(np.sin(singles[:, 2]).mean(), np.cos(singles[:, 2]).mean())
     np.testing.assert_allclose(float(many.xypsi[2]), psi, atol=1e-4)
     assert many.iterates.shape == (3, 3) and np.all(np.isfinite(np.asarray(many.pose)))
-    for bad in ({"fine_views": 9}, {"fine_views": 0}, {"fine_spread": (0.01, -0.1, 0.0)}):
+    for bad in ({"fine_views": 9}, {"fine_views": 0}, {"fine_spread": (0.01, -0.1, 0.0)}, {"fine_iter": -1}):
         with pytest.raises(RhamlError, match="RefineConfig.fine_"):
             RefineConfig(**bad)
+    with pytest.raises(RhamlError, match="RefineConfig.n_iter"):
+        RefineConfig(n_iter=0)
 
 
 @settings(max_examples=25, deadline=None)

@@ -100,6 +100,10 @@ class RefineConfig:
 
         if self.max_final_step is not None and not self.max_final_step > 0:
             raise RhamlError(f"RefineConfig.max_final_step must be > 0 or None, got {self.max_final_step}")
+        if self.n_iter is not None and self.n_iter < 1:
+            raise RhamlError(f"RefineConfig.n_iter must be >= 1 or None, got {self.n_iter}")
+        if self.fine_iter < 0:
+            raise RhamlError(f"RefineConfig.fine_iter must be >= 0, got {self.fine_iter}")
         if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
             raise RhamlError(f"RefineConfig.fine_views must be in 1..{len(_VIEW_SIGNS)}, got {self.fine_views}")
         if len(self.fine_spread) != 3 or min(self.fine_spread) < 0:

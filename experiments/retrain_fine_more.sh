@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Issue 15, session 40 (BENCHMARKS.md, "The fine refiner on twice the images"): session 39's
+# default fine refiner (refiner_fine_long_cpu) trained 10,000 more steps at batch 16 from fine
+# starts, on twice session 39's images: its 4,800 (3,200 plain-look v1, 1,600 randomised v3) plus
+# 4,800 new ones (2,400 v1, seed 401; 2,400 v3, seed 402), since in session 39 the validation loss
+# flattened while the training loss still fell; then the cascade from the paper's noise on 2 x 100
+# validation frames (our look, seeds 7 and 8; experiments/bench_refine.py). Every stage resumes.
+# Needs session 39's images (experiments/retrain_fine_plain.sh renders them).
+#   bash experiments/retrain_fine_more.sh DATA_ROOT RUNS_ROOT
+set -euo pipefail
+DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s40}"
+PY="${PYTHON:-python}"; WORKERS="${WORKERS:-2}"
+gen() {  # out seed count look-args
+  [ -f "$DATA/$1/.complete" ] || { "$PY" -m rhaml_jax.generate --out "$DATA/$1" --num "$3" --negatives 0 --seed "$2" --workers "$WORKERS" ${@:4}; touch "$DATA/$1/.complete"; }
+}
+gen s40_refine_v1 401 2400 --appearance v1
+gen s40_refine_v3 402 2400 --ranges.repaint-prob 0.5
+[ -d "$DATA/s40_refine_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s40_refine_mix" \
+  "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b" "$DATA/s39_refine_v3" "$DATA/s40_refine_v1" "$DATA/s40_refine_v3"
+run=fine_more
+"$PY" -m rhaml_jax.train --stage refiner --config refiner_fine_cpu --data "$DATA/s40_refine_mix" --out "$RUNS/$run" \
+  --init rhaml_jax/checkpoints/refiner_fine_long_cpu --lr 3e-4 --warmup 100 --steps 10000 --batch 16 --seed 40 \
+  --val-every 1000 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
+[ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
+for label in default $run; do
+  fine=rhaml_jax/checkpoints/refiner_fine_long_cpu; [ $label = default ] || fine="$RUNS/export/$run"
+  for s in 7 8; do
+    out="$RUNS/bench_${label}_s$s.json"
+    [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
+      --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$fine" --no-oracle --json "$out"
+  done
+done
