@@ -1,0 +1,47 @@
+"""Refined errors by range band, from `experiments/bench_refine.py --json` outputs: per band of the
+true range, mean |dx| (cm), mean |relative range error| (%) and mean |dpsi| (deg) after one learned
+stage (default: the last iteration row; the convergence check is not applied).
+
+  python experiments/refine_bands.py OUT.json [OUT.json ...] [--start noise] [--stage -1]
+
+Several JSONs (e.g. validation seeds 7 and 8) are pooled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import metrics
+
+BANDS = (0.0, 3.0, 4.5, 6.0, 9.0)  # m
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("json", nargs="+")
+    ap.add_argument("--start", default="noise", help="which start's frames: noise or iml")
+    ap.add_argument("--stage", type=int, default=-1, help="row of learned_iterates (0: the start; -1: the last iteration)")
+    a = ap.parse_args()
+    gt, est = [], []
+    for path in a.json:
+        runs = [p for p in json.load(open(path))["per_frame"] if p["start"] == a.start]
+        if not runs:
+            raise SystemExit(f"{path}: no per-frame rows of start {a.start!r}")
+        gt.append(np.asarray(runs[0]["gt"])); est.append(np.asarray(runs[0]["learned_iterates"])[:, a.stage])
+    gt, est = np.concatenate(gt), np.concatenate(est)
+    d = np.asarray(metrics.abs_errors(jnp.asarray(est, jnp.float32), jnp.asarray(gt, jnp.float32)))
+    r = np.hypot(gt[:, 0], gt[:, 1])
+    rr = np.abs(np.hypot(est[:, 0], est[:, 1]) / r - 1)
+    for lo, hi in zip(BANDS[:-1], BANDS[1:]):
+        k = (r >= lo) & (r < hi)
+        if k.any():
+            print(f"{lo:.1f}-{hi:.1f} m ({k.sum()}): |dx| {100 * d[k, 0].mean():.2f} cm, |range| {100 * rr[k].mean():.2f} %, "
+                  f"|dpsi| {np.rad2deg(d[k, 2]).mean():.2f} deg")
+
+
+if __name__ == "__main__":
+    main()
