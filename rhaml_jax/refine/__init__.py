@@ -71,10 +71,12 @@ class RefineConfig:
     """the scorer turns the heading by about 180 deg only if its softmax mass on the other side exceeds this"""
     post_iter: int = 1
     """learned iterations after the scorer's heading search (the position, re-read at the new heading)"""
-    fine_iter: int = 1
+    fine_iter: int = 2
     """iterations of the fine refiner (`StageParams.fine`, a cascade's second stage trained from
-    the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration
-    (on validation the first helps, later ones drift: BENCHMARKS.md, "A fine refiner")"""
+    the small errors the first leaves: `RefinerConfig.starts`), after every other learned iteration.
+    With the default fine refiner the second iteration takes 12 % off |dpsi| from the paper's noise
+    and the pipeline's IML+IR position 2 % on the validation looks (session 29's fine refiner drifted
+    after its first: BENCHMARKS.md, "How many iterations of each refiner")"""
     fine_views: int = 1
     """the fine refiner runs from this many starts around the pose and its answers are averaged
     (`view_starts`: 1 = the pose alone; at most 8). Measured: 8 views take 11 % off |dx| on
