@@ -1,0 +1,56 @@
+"""Milliseconds per frame of the IR stage's learned iterations for several (coarse, fine) iteration
+counts, measured side by side in one process: the shipped refiner cascade on a batch of frames of a
+BOP set (jax.vmap of `refine.refine`, no alignment), each setting's median over `--repeats` calls,
+the settings' calls interleaved so that load on the machine falls on all alike.
+
+  python experiments/time_refine_iterations.py --data DATA/circle --batch 8 --repeats 15 --settings 4,1 4,2
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhaml_jax import data, refine
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=Path, required=True)
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--settings", nargs="+", default=["4,1", "4,2"], help="n_iter,fine_iter pairs")
+    a = ap.parse_args()
+    frames = [f for f in data.read_bop(a.data) if f.observed][: a.batch]
+    if len(frames) < a.batch:
+        raise SystemExit(f"{a.data}: {len(frames)} frames with the robot in view, --batch {a.batch} asked")
+    cfg, st = refine.load_stage(None, a.data)
+    images = jnp.asarray(np.stack([data.load_rgb(f.rgb) for f in frames]), jnp.float32) / 255
+    Ks = jnp.asarray(np.stack([f.K for f in frames]), jnp.float32)
+    init = jnp.asarray(np.stack([f.xypsi for f in frames]), jnp.float32) + jnp.array([0.05, 0.03, 0.1])
+    fns = {}
+    for s in a.settings:
+        n, f = (int(v) for v in s.split(","))
+        rc = refine.RefineConfig(align=None, n_iter=n, fine_iter=f)
+        fns[s] = jax.jit(jax.vmap(lambda im, K, i, rc=rc: refine.refine(st.refiner, st.mesh, im, K, i, rc, fine=st.fine).xypsi))
+        jax.block_until_ready(fns[s](images, Ks, init))  # compile
+    ts = {s: [] for s in fns}
+    for _ in range(a.repeats):
+        for s, fn in fns.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn(images, Ks, init))
+            ts[s].append(time.perf_counter() - t)
+    base = statistics.median(ts[a.settings[0]])
+    for s in a.settings:
+        m = statistics.median(ts[s])
+        print(f"n_iter,fine_iter {s}: {1e3 * m / a.batch:.1f} ms per frame at batch {a.batch} ({m / base:.2f}x the first)")
+
+
+if __name__ == "__main__":
+    main()
