@@ -35,13 +35,15 @@ from rhaml_jax.zoom import calibration_metrics
 FUSE = jax.jit(pipeline.fuse_estimates, static_argnums=0)
 
 
-def pgo_config(metrics: dict | None) -> pipeline.PipelineConfig:
-    """The pose graph an evaluate run used, from its stored metrics (an `--modules iml` run, or a run
-    older than these fields: evaluate's default, batch fusion with range calibration)."""
+def pgo_config(metrics: dict | None, refined: bool = False) -> pipeline.PipelineConfig:
+    """The pose graph an evaluate run used on IML's (or, `refined`, IR's) estimates, from its stored
+    metrics (an `--modules iml` run, or a run older than these fields: batch fusion with range
+    calibration, one range-model transform for the whole sequence)."""
     m = metrics or {}
-    return pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=m.get("pgo_mode", "batch"),
+    return pipeline.PipelineConfig(modules=("iml", "ir", "pgo") if refined else ("iml", "pgo"),
+                                   pgo_mode=m.get("pgo_mode", "batch"),
                                    fusion=pgo.FusionConfig(information=m.get("information", "noise_model")),
-                                   calibrate_range=m.get("range_calibration", True))
+                                   calibrate_range=m.get("range_calibration", True), range_window=m.get("range_window"))
 
 
 def fused(rows: list[dict], scene, key: str, detected: np.ndarray, metrics: dict | None = None) -> np.ndarray:
@@ -52,7 +54,7 @@ def fused(rows: list[dict], scene, key: str, detected: np.ndarray, metrics: dict
     flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
     n = len(rows)
     est = Estimate(xypsi=xypsi, o=jnp.ones(n, jnp.float32), flip_prob=flip, roll_pitch=jnp.zeros((n, 2), jnp.float32))
-    fusion, _ = FUSE(pgo_config(metrics), est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
+    fusion, _ = FUSE(pgo_config(metrics, key == "ir_est"), est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
     return np.asarray(fusion.relative)
 
 

@@ -8,7 +8,9 @@ batch fusion (`pgo.fuse_calibrated`: fuse, calibrate, rescale, fuse again, as
 `pipeline.fuse_estimates`) with the range model varied: `off` (no calibration), `absolute`
 (every observation's x, y error alike: the pipeline's model until session 18), `relative` (the
 error a percentage of the range: the pipeline's default since), `unguarded` (relative without
-the support guard: the pipeline until session 19), `slope` (relative, c_1 fitted too). Prints abs dx, dy (cm) and ATE of each, the estimates'
+the support guard: the pipeline until session 19), `slope` (relative, c_1 fitted too), `window100`
+and `window200` (relative, a transform between the odometry frames per 100 or 200 consecutive rows:
+the odometry's drift kept out of the scale, session 40). Prints abs dx, dy (cm) and ATE of each, the estimates'
 true range bias (mean log est/true range over the fusion's inliers), the fitted c_0 and the rows the
 fusion kept (`off`: the uncalibrated fusion's, which the fits start from).
 """
@@ -48,8 +50,8 @@ def fused(rows: list[dict], scene, key: str) -> tuple[dict, np.ndarray]:
 
 # the pipeline runs "relative"; all but "unguarded" keep a calibration only with the support guard
 VARIANTS = {"absolute": dict(relative=False), "relative": dict(), "unguarded": dict(min_support=0.0),
-            "slope": dict(slope=True)}
-FUSE_CALIBRATED = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope"))
+            "slope": dict(slope=True), "window100": dict(window=100), "window200": dict(window=200)}
+FUSE_CALIBRATED = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope", "window"))
 
 
 def main() -> None:

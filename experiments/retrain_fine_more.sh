@@ -4,7 +4,8 @@
 # starts, on twice session 39's images: its 4,800 (3,200 plain-look v1, 1,600 randomised v3) plus
 # 4,800 new ones (2,400 v1, seed 401; 2,400 v3, seed 402), since in session 39 the validation loss
 # flattened while the training loss still fell; then the cascade from the paper's noise on 2 x 100
-# validation frames (our look, seeds 7 and 8; experiments/bench_refine.py). Every stage resumes.
+# validation frames (our look, seeds 7 and 8; experiments/bench_refine.py), with one and two fine
+# iterations. Every stage resumes.
 # Needs session 39's images (experiments/retrain_fine_plain.sh renders them).
 #   bash experiments/retrain_fine_more.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
@@ -22,11 +23,11 @@ run=fine_more
   --init rhaml_jax/checkpoints/refiner_fine_long_cpu --lr 3e-4 --warmup 100 --steps 10000 --batch 16 --seed 40 \
   --val-every 1000 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
 [ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
-for label in default $run; do
-  fine=rhaml_jax/checkpoints/refiner_fine_long_cpu; [ $label = default ] || fine="$RUNS/export/$run"
+for f in 1 2; do  # fine iterations (session 39's default 1, now 2); the default network's rows: experiments/refine_iterations.sh
   for s in 7 8; do
-    out="$RUNS/bench_${label}_s$s.json"
+    out="$RUNS/bench_${run}_f${f}_s$s.json"
     [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
-      --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$fine" --no-oracle --json "$out"
+      --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$RUNS/export/$run" --fine-iter $f \
+      --no-oracle --json "$out"
   done
 done

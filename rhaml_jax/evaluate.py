@@ -87,6 +87,9 @@ class Args:
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
     odometry (`pgo.fuse_calibrated`) and fusing again"""
+    range_window: int | None | Literal["auto"] = "auto"
+    """pgo (batch): rows per transform of the range calibration (`PipelineConfig.range_window`;
+    auto: 200 for refined estimates, the whole sequence for IML's; None: the whole sequence)"""
     batch: int = 32
     """frames per network call"""
     allow_other_robot: bool = False
@@ -158,7 +161,7 @@ def _load(args: Args, modules):
                                       fine_iter=refiner.fine_iter if args.fine_iter is None else args.fine_iter)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
-                                  calibrate_range=not args.no_range_calibration,
+                                  calibrate_range=not args.no_range_calibration, range_window=args.range_window,
                                   redetect_threshold=args.redetect_threshold)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
 
@@ -196,7 +199,7 @@ def run(args: Args) -> dict:
     if "pgo" in modules:
         m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold,
               "information": "paper" if args.paper_information else "noise_model",
-              "range_calibration": not args.no_range_calibration,
+              "range_calibration": not args.no_range_calibration, "range_window": args.range_window,
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
               "range_model": [[float(v) for v in r.result.range_model] for r in runs]}
     return {"metrics": m, "frames": rows}

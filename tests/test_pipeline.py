@@ -281,6 +281,19 @@ def test_redetect_config_errors():
     pipeline.PipelineConfig(modules=("iml",))  # the default: unused without pgo
 
 
+def test_range_window_follows_the_modules():
+    """'auto': a range-model transform per RANGE_WINDOW_REFINED rows for refined estimates, one for
+    the whole sequence for IML's; a number or None as given; too few rows refused."""
+    auto = {mods: pipeline.PipelineConfig(modules=mods).calibration_window
+            for mods in (("iml", "pgo"), ("iml", "ir", "pgo"))}
+    assert auto == {("iml", "pgo"): None, ("iml", "ir", "pgo"): pipeline.RANGE_WINDOW_REFINED}
+    assert pipeline.PipelineConfig(modules=("iml", "pgo"), range_window=50).calibration_window == 50
+    assert pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), range_window=None).calibration_window is None
+    for bad in (3, "sometimes", 100.0):
+        with pytest.raises(RhamlError, match="range_window"):
+            pipeline.PipelineConfig(range_window=bad)
+
+
 @pytest.mark.parametrize("mode", ["batch", "online"])
 def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage, mode):
     m, p = stage

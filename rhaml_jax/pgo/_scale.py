@@ -18,6 +18,13 @@ runs mostly towards and away from it (the sine) a translation of F along the lin
 the slope c_1 explain the same errors (measured: the sine's fit then read c_0 = 0.050 for a
 true 0.025; BENCHMARKS.md, "Pipeline").
 
+Odometry drifts, so one rigid F for a whole sequence cannot match the path's far end, and a
+scale fitted with it takes up some of the drift: with exact observations on validation sequences
+it read +0.2 to +0.5 %, more than the refiner's own range error. `window` fits one F per that
+many consecutive rows with the scale shared (a weak prior ties each F to the fused one): drift
+within a window is small, and the window's path still shows the scale (the pipeline's default
+for refined estimates: 200 rows; BENCHMARKS.md, "The range calibration read the odometry's drift").
+
 The observations' errors are taken as relative by default (`relative=True`: sigma = obs_sigma_m
 rho / R0, a monocular range read a percentage off), which weights the far observations, whose
 errors are largest and vary most along a path, less. On 8 validation sequences it fitted the scale
@@ -57,12 +64,18 @@ def _log_ratio(c, r):
 
 
 def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, obs_sigma_m: float = 0.1,
-                prior_sigma=(0.1, 0.05), slope: bool = False, iterations: int = 8, relative: bool = True) -> jax.Array:
+                prior_sigma=(0.1, 0.05), slope: bool = False, iterations: int = 8, relative: bool = True,
+                window: int | None = None) -> jax.Array:
     """(2,) coefficients c of rho = r exp(c_0 + c_1 (r - R0)) from rows with `weights` (K,) (e.g.
     the fusion's inliers), starting from the fused transform between the odometry frames (3,);
-    c_1 = 0 unless `slope`. Pure JAX, fixed iteration count, differentiable."""
+    c_1 = 0 unless `slope`; `window`: rows per window of consecutive rows, each with its own
+    transform (None: one for all). Pure JAX, fixed iteration count, differentiable."""
     z = _planar(rv.observation)[:, 2:]  # (K, 2) observed x, y
     oa, ob = rv.odom_a[1:], rv.odom_b[1:]
+    K = z.shape[0]
+    W = K if window is None else min(window, K)
+    M = -(-K // W)  # windows
+    win = jnp.arange(K) // W
     w = jnp.sqrt(jnp.asarray(weights, z.dtype))[:, None] / obs_sigma_m
     if relative:  # sigma grows with the observed range rho, from 1 m on (the floor: finite weight
         # at rho = 0; the 1e-12: a finite gradient there, where sqrt's is infinite)
@@ -70,23 +83,29 @@ def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, 
     nc = 2 if slope else 1
     prior = jnp.asarray(prior_sigma[:nc], z.dtype)
 
-    def coefficients(theta):
-        return theta[3:] if slope else jnp.concatenate([theta[3:], jnp.zeros((1,), theta.dtype)])
+    F_sigma = jnp.asarray([1.0, 1.0, 0.2], z.dtype)  # m, m, rad: a weak pull of every window's transform
+    # towards the fused one (a window without kept rows stays there)
 
-    def residuals(theta):  # theta = (F_x, F_y, F_psi, c_0[, c_1])
-        B = compose(theta[:3], ob)
+    def coefficients(theta):
+        c = theta[3 * M:]
+        return c if slope else jnp.concatenate([c, jnp.zeros((1,), theta.dtype)])
+
+    def residuals(theta):  # theta = (F_1 (x, y, psi), ..., F_M, c_0[, c_1])
+        F = theta[: 3 * M].reshape(M, 3)
+        B = compose(F[win], ob)
         rel = jnp.where(rv.a_observes[:, None], between(oa, B), between(B, oa))[:, :2]
         r = jnp.sqrt(jnp.sum(rel**2, -1) + 1e-12)  # guard: finite gradient with the robots at one spot
         pred = rel * jnp.exp(_log_ratio(coefficients(theta), r))[:, None]
-        return jnp.concatenate([(w * (z - pred)).reshape(-1), theta[3:] / prior])
+        pull = ((F - odom_a_T_odom_b) / F_sigma).reshape(-1) if M > 1 else jnp.zeros((0,), z.dtype)
+        return jnp.concatenate([(w * (z - pred)).reshape(-1), pull, theta[3 * M:] / prior])
 
     def step(theta, _):
-        J = jax.jacfwd(residuals)(theta)  # (2K + nc, 3 + nc)
+        J = jax.jacfwd(residuals)(theta)  # (2K [+ 3M] + nc, 3M + nc)
         r = residuals(theta)
-        H = J.T @ J + 1e-9 * jnp.eye(3 + nc, dtype=J.dtype)  # guard: the priors keep H positive definite
+        H = J.T @ J + 1e-9 * jnp.eye(3 * M + nc, dtype=J.dtype)  # guard: the priors keep H positive definite
         return theta - jnp.linalg.solve(H, J.T @ r), None
 
-    theta0 = jnp.concatenate([odom_a_T_odom_b, jnp.zeros((nc,), odom_a_T_odom_b.dtype)])
+    theta0 = jnp.concatenate([jnp.tile(odom_a_T_odom_b, M), jnp.zeros((nc,), odom_a_T_odom_b.dtype)])
     theta, _ = jax.lax.scan(step, theta0, None, length=iterations)
     # guard: undamped Gauss-Newton on garbage (a localiser that does not see the robot) can
     # diverge; keep the fit only if it lowered the cost, is finite, and stays within +-30 %
@@ -111,7 +130,7 @@ def rescale_observations(rv: Rendezvous, c: jax.Array, iterations: int = 6) -> R
 
 def fuse_calibrated(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | None = None,
                     flip_prob: jax.Array | None = None, relative: bool = True, slope: bool = False,
-                    min_support: float = MIN_SUPPORT) -> tuple[FusionResult, jax.Array]:
+                    min_support: float = MIN_SUPPORT, window: int | None = None) -> tuple[FusionResult, jax.Array]:
     """`fuse`, the range model fitted on its inliers (`range_model`), and `fuse` again on the
     rescaled observations -> (fusion, c (2,)). The calibrated fusion is kept only if it keeps
     at least `min_support` of the valid rows (K,); else the first fusion and c = 0. Jit with
@@ -122,7 +141,7 @@ def fuse_calibrated(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: j
     # guard: with no inlier the transform is undetermined (NaN); fit from the identity then
     # (the cost guard inside range_model refuses it, and the support test below too)
     F = jnp.where(jnp.any(used > 0), first.odom_a_T_odom_b, 0.0)
-    c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope)
+    c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope, window=window)
     second = fuse(rescale_observations(rv, c), cfg, valid=valid, flip_prob=flip_prob)
     support = jnp.sum(second.inlier & valid) / jnp.maximum(jnp.sum(valid), 1)
     keep = (support >= min_support) & jnp.any(c != 0)
