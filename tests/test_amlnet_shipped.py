@@ -103,7 +103,7 @@ def test_default_iml_localises_rendered_robots():
     assert np.median(dpsi) < 15.0, np.sort(dpsi)
 
 
-@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, DEFAULT_FINE_REFINER, "refiner_cpu", "refiner_fine_cpu",
+@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, DEFAULT_FINE_REFINER, "refiner_cpu", "refiner_fine_cpu", "refiner_fine_long_cpu",
                                          "refiner_fit167_cpu", "refiner_fit180_cpu"}))
 def test_shipped_refiner_size_and_robot(name):
     """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and the others): within the size
@@ -119,7 +119,7 @@ def test_shipped_refiner_size_and_robot(name):
     assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
     robot = load_robot("pioneer3dx")
     refiner = load_refiner(path, robot)
-    fine = name in (DEFAULT_FINE_REFINER, "refiner_fine_cpu")  # a cascade's second stage
+    fine = name in (DEFAULT_FINE_REFINER, "refiner_fine_cpu", "refiner_fine_long_cpu")  # a cascade's second stage
     assert refiner.cfg.name == ("refiner_fine_cpu" if fine else "refiner_cpu")
     assert refiner.cfg.starts == ("fine" if fine else "coarse")
     assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(refiner.params))

@@ -331,10 +331,11 @@ validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit
 it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
 
 
-DEFAULT_FINE_REFINER = "refiner_fine_long_cpu"
+DEFAULT_FINE_REFINER = "refiner_fine_more_cpu"
 """the shipped cascade's fine refiner (config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"), run
 after `DEFAULT_REFINER` unless another refiner is given (chosen on validation: BENCHMARKS.md, "The
-fine refiner trained longer"; session 29's `refiner_fine_cpu`, "A fine refiner", ships beside it)"""
+fine refiner on twice the images"; the two it was trained from ship beside it: `refiner_fine_long_cpu`,
+"The fine refiner trained longer", and session 29's `refiner_fine_cpu`, "A fine refiner")"""
 
 
 def shipped_refiner(model=None) -> Refiner:
