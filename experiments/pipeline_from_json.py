@@ -1,7 +1,7 @@
 """The four module combinations' figures from stored per-frame estimates (no network runs here).
 
   python experiments/pipeline_from_json.py --set LABEL EVAL.json DATA [EVAL.json DATA ...] [--set ...]
-      [--thresholds 0.5 0.4 0.3] [--out OUT.json]
+      [--thresholds 0.5 0.4 0.3] [--range-window auto|None|ROWS] [--out OUT.json]
 
 Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA (or
 `--modules iml`: then the IML and IML+PGO rows only). Per set (its
@@ -11,7 +11,8 @@ dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate`
 (> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
 again with a frame called detected at o >= t (the pipeline's threshold is 0.5). Also how well the
 stored IML flip probability predicts IML's flips over the detected frames (`zoom.calibration_metrics`:
-Brier score, calibration error, ROC area), one line per set.
+Brier score, calibration error, ROC area), one line per set. --range-window refits the pose-graph
+rows with that range-model window (`PipelineConfig.range_window`) instead of the run's.
 """
 
 from __future__ import annotations
@@ -73,8 +74,14 @@ def main() -> None:
     ap.add_argument("--set", nargs="+", action="append", required=True, metavar="LABEL EVAL.json DATA",
                     help="a label, then pairs of evaluate --json output and its BOP data folder")
     ap.add_argument("--thresholds", nargs="+", type=float, default=())
+    ap.add_argument("--range-window", help="auto, None or a number of rows: the pose-graph rows' range window instead of the run's")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
+    window = {None: {}, "auto": {"range_window": "auto"}, "None": {"range_window": None}}.get(a.range_window)
+    if window is None:
+        if not a.range_window.isdigit():
+            ap.error(f"--range-window {a.range_window}: expected auto, None or a number of rows")
+        window = {"range_window": int(a.range_window)}
     out = {}
     for label, *rest in a.set:
         if not rest or len(rest) % 2:
@@ -83,7 +90,7 @@ def main() -> None:
         flip_prob, is_flip = [], []
         for js, data in zip(rest[::2], rest[1::2]):
             run = json.loads(Path(js).read_text())
-            rows, metrics = run["frames"], run["metrics"]
+            rows, metrics = run["frames"], run["metrics"] | window
             if "iml_est" not in rows[0]:
                 ap.error(f"{js}: no iml_est rows (run evaluate --modules iml[,ir,pgo])")
             scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])

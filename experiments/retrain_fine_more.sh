@@ -31,3 +31,23 @@ for f in 1 2; do  # fine iterations (session 39's default 1, now 2); the default
       --no-oracle --json "$out"
   done
 done
+# After the choice (on validation: LABEL=fine_more_f2 NETS=... EXTRA="--fine-iter 2" and then, with the
+# windowed range calibration, LABEL=fine_more_f2_win, experiments/validate_networks.sh; compare_validation.py),
+# the test and held-out sets, reported only: the whole pipeline with the defaults (this network, shipped as
+# refiner_fine_more_cpu, two fine iterations, range_window auto), its pose-graph rows refitted without the
+# window, then issue 15's table (bench_refine.py from the paper's noise and from the IML, every 5th frame the
+# IML detected).
+for s in ours/circle ours/sine heldout/circle heldout/sine; do
+  j="$RUNS/test_final_$(echo $s | tr / _).json"
+  [ -f "$j" ] || "$PY" -m rhaml_jax.evaluate --data "$DATA/$s" --modules iml,ir,pgo --zoom-mirror --json "$j" > "${j%.json}.log"
+done
+sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_final_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_final_${set}_sine.json" "$DATA/$set/sine"); done
+[ -f "$RUNS/pipeline_test_final.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_final.json"
+[ -f "$RUNS/pipeline_test_final_nowindow.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --range-window None --out "$RUNS/pipeline_test_final_nowindow.json"
+for set in ours heldout; do
+  out="$RUNS/bench_test_final_$set.json"
+  [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
+    --iml-json "$RUNS/test_final_${set}_circle.json" "$RUNS/test_final_${set}_sine.json" --starts noise iml --stride 5 \
+    --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner rhaml_jax/checkpoints/refiner_fine_more_cpu --fine-iter 2 \
+    --no-oracle --json "$out"
+done
