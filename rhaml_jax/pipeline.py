@@ -33,7 +33,7 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
-__all__ = ["MODULES", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
+__all__ = ["MODULES", "RANGE_WINDOW_REFINED", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
            "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
