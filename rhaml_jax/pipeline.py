@@ -70,7 +70,7 @@ class PipelineConfig:
     # batch pgo with calibrate_range: the range model fits one transform between the odometry
     # frames per this many consecutive rows (`pgo.fuse_calibrated`'s window), so that the
     # odometry's drift is not read as a range error (one transform for the whole sequence read
-    # ground-truth ranges +0.2 to +0.5 % long on validation sequences); None: one for the whole
+    # ground-truth ranges +0.2 to +0.4 % long on validation sequences); None: one for the whole
     # sequence; "auto": RANGE_WINDOW_REFINED rows for refined estimates (ir in modules), None for
     # IML's own, whose range error grows with the range and needs the whole path to be seen
     # (BENCHMARKS.md, "The range calibration read the odometry's drift")

@@ -19,11 +19,12 @@ the slope c_1 explain the same errors (measured: the sine's fit then read c_0 = 
 true 0.025; BENCHMARKS.md, "Pipeline").
 
 Odometry drifts, so one rigid F for a whole sequence cannot match the path's far end, and a
-scale fitted with it takes up some of the drift: with exact observations on validation sequences
-it read +0.2 to +0.5 %, more than the refiner's own range error. `window` fits one F per that
-many consecutive rows with the scale shared (a weak prior ties each F to the fused one): drift
-within a window is small, and the window's path still shows the scale (the pipeline's default
-for refined estimates: 200 rows; BENCHMARKS.md, "The range calibration read the odometry's drift").
+scale fitted with it takes up some of the drift: given the true relative poses of validation
+sequences as observations it read +0.2 to +0.4 %, more than the refiner's own range error.
+`window` fits one F per that many consecutive rows with the scale shared (a weak prior ties
+each F to the fused one): drift within a window is small, and the window's path still shows the
+scale (the pipeline's default for refined estimates: 200 rows; BENCHMARKS.md, "The range
+calibration read the odometry's drift").
 
 The observations' errors are taken as relative by default (`relative=True`: sigma = obs_sigma_m
 rho / R0, a monocular range read a percentage off), which weights the far observations, whose
