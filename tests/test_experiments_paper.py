@@ -58,9 +58,11 @@ def test_table_i_json_and_npz(table):
                 assert np.isfinite(est).all()
                 assert all(math.isfinite(v) for k in ("dx_cm", "dy_cm", "dpsi_deg") for v in m[k])
                 assert math.isfinite(m["ate"]) and m["fps"] > 0
-    # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations and the fine refiner's one
+    # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations and the fine refiner's
+    from rhaml_jax.refine import RefineConfig
+
     r, ir = res["rows"], table_i.refiner_size()
-    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", "refiner_fine_cpu x 1"]
+    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", f"refiner_fine_cpu x {RefineConfig().fine_iter}"]
     assert r["rhaml"]["params"] == r["iml"]["params"] + ir["params"] and r["rhaml"]["macs"] == r["iml"]["macs"] + ir["macs"]
     assert r["rhaml"]["params"] > r["iml"]["params"] > r["amlnet"]["params"]
     assert r["rhaml"]["macs"] > r["iml"]["macs"] > r["amlnet"]["macs"]
