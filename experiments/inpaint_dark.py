@@ -1,7 +1,7 @@
 """A copy of a BOP training set in which the robot's dark parts cannot be seen: in every other
 image of the set (a pure function of the image's place in it, negatives counted), if it shows the
-robot, the robot's pixels of luma under --luma (Rec. 601, 0-1; its tyres) are inpainted from their surroundings (OpenCV Telea, 5 px, the mask
-grown by a pixel for the anti-aliased rims); labels, masks and the val / test splits unchanged
+robot, the robot's pixels of luma under --luma (Rec. 601, 0-1; its tyres) are inpainted from their
+surroundings (OpenCV Telea, 5 px, the mask grown by a pixel for the anti-aliased rims); labels, masks and the val / test splits unchanged
 (hard links). A probe of issue 18's long range on dark surroundings: does a network trained on
 robots at their true range whose lower outline is missing read the range from what is left?
 (BENCHMARKS.md, "A log-luminance channel, and a test-time gamma, do not take the long range away

@@ -30,7 +30,7 @@ def main() -> None:
     frames = [f for f in data.read_bop(a.data) if f.observed][: a.batch]
     if len(frames) < a.batch:
         raise SystemExit(f"{a.data}: {len(frames)} frames with the robot in view, --batch {a.batch} asked")
-    cfg, st = refine.load_stage(None, a.data)
+    _, st = refine.load_stage(None, a.data)  # the shipped cascade; each setting brings its own RefineConfig
     images = jnp.asarray(np.stack([data.load_rgb(f.rgb) for f in frames]), jnp.float32) / 255
     Ks = jnp.asarray(np.stack([f.K for f in frames]), jnp.float32)
     init = jnp.asarray(np.stack([f.xypsi for f in frames]), jnp.float32) + jnp.array([0.05, 0.03, 0.1])
