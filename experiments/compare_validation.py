@@ -1,7 +1,8 @@
 """Is candidate B better than A on the validation looks, beyond what the choice of frames explains?
 
     python experiments/compare_validation.py A B [--looks ours ood mono] [--ev /work/runs/validation]
-        [--data /work/data] [--block 25] [--draws 2000] [--seed 0] [--extra LOOK SET ...] [--out OUT.json]
+        [--data /work/data] [--block 25] [--draws 2000] [--seed 0] [--extra LOOK SET ...]
+        [--metric-b KEY JSON ...] [--out OUT.json]
 
 A and B are labels of `experiments/validate_networks.sh` runs (EV/{label}_{set}.json). Per row
 (IML, IML+PGO, IML+IR, IML+IR+PGO; the pose-graph rows refitted from the stored estimates as
@@ -31,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pipeline_from_json import fused  # noqa: E402
+from pipeline_from_json import fused, metric_overrides  # noqa: E402
 
 from rhaml_jax.data import read_bop  # noqa: E402
 from rhaml_jax.metrics import flipped  # noqa: E402
@@ -57,10 +58,11 @@ def sq_twist(est: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return np.asarray(jnp.sum(t**2, axis=-1), np.float64)
 
 
-def per_frame(path: Path, data: Path) -> dict[str, dict]:
+def per_frame(path: Path, data: Path, metrics: dict | None = None) -> dict[str, dict]:
     """Row -> {"q": {"ATE": squared twists, "position": squared position errors (m^2)} over the
-    observed frames, "flips" and "detected" robots} of one run."""
+    observed frames, "flips" and "detected" robots} of one run; `metrics` override its stored ones."""
     run = json.loads(path.read_text())
+    run["metrics"] = run["metrics"] | (metrics or {})
     rows = run["frames"]
     scene = load_scene(list(group_scenes(read_bop(data)).values())[0])
     det, obs, gt = np.array([r["detected"] for r in rows]), np.asarray(scene.observed), np.asarray(scene.gt)
@@ -119,8 +121,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--extra", nargs=2, action="append", default=[], metavar=("LOOK", "SET"),
                     help="also count SET (a folder under --data, scored as EV/LABEL_SET.json) in LOOK; repeatable")
+    ap.add_argument("--metric-b", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
+                    help="B's stored metric KEY set to the JSON value before its pose-graph rows are refitted "
+                         "(a pose-graph setting compared on the same estimates: B may be A's label); repeatable")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
+    metric_b = metric_overrides(ap, "--metric-b", a.metric_b)
     if a.block < 1 or a.draws < 100:
         ap.error("--block must be >= 1 and --draws >= 100")
     looks_sets = {look: list(sets) for look, sets in LOOKS.items()}
@@ -128,15 +134,15 @@ def main() -> None:
         if look not in looks_sets:
             ap.error(f"--extra {look} {s}: no look {look!r} (one of {', '.join(LOOKS)})")
         looks_sets[look].append(s)
-    runs = {}
+    runs = {}  # (role "a" | "b", set) -> per_frame
     for look in a.looks:
-        for label in (a.a, a.b):
+        for role, label in (("a", a.a), ("b", a.b)):
             for s in looks_sets[look]:
                 path = a.ev / f"{label}_{s.replace('/', '_')}.json"
                 if not path.exists():
                     ap.error(f"{path}: not found (run LABEL={label} experiments/validate_networks.sh)")
-                runs[label, s] = per_frame(path, a.data / s)
-                if label == a.b and len(runs[a.a, s]["IML"]["q"]["ATE"]) != len(runs[a.b, s]["IML"]["q"]["ATE"]):
+                runs[role, s] = per_frame(path, a.data / s, metric_b if role == "b" else None)
+                if role == "b" and len(runs["a", s]["IML"]["q"]["ATE"]) != len(runs["b", s]["IML"]["q"]["ATE"]):
                     ap.error(f"{s}: the two labels' runs cover different frames")
     out = {}
     print("| looks | row | figure (RMS) | A | B | B / A (geometric mean over sequences, 95 %) | verdict | flips A / B | detected A / B |")
@@ -146,23 +152,24 @@ def main() -> None:
         out[name] = {}
         for row in ROWS:
             sets = [s for look in looks for s in looks_sets[look]]
-            if not all(row in runs[label, s] for label in (a.a, a.b) for s in sets):
+            if not all(row in runs[role, s] for role in "ab" for s in sets):
                 continue
             for fig in FIGURES:
-                q = {label: {look: [runs[label, s][row]["q"][fig] for s in looks_sets[look]] for look in looks} for label in (a.a, a.b)}
-                r = compare(q[a.a], q[a.b], a.block, a.draws, a.seed)
-                for label, key in ((a.a, "a"), (a.b, "b")):
-                    r[f"flips_{key}"] = sum(runs[label, s][row]["flips"] for s in sets)
-                    r[f"detected_{key}"] = sum(runs[label, s][row]["detected"] for s in sets)
+                q = {role: {look: [runs[role, s][row]["q"][fig] for s in looks_sets[look]] for look in looks} for role in "ab"}
+                r = compare(q["a"], q["b"], a.block, a.draws, a.seed)
+                for role in "ab":
+                    r[f"flips_{role}"] = sum(runs[role, s][row]["flips"] for s in sets)
+                    r[f"detected_{role}"] = sum(runs[role, s][row]["detected"] for s in sets)
                 out[name][f"{row} {fig}"] = r
                 print(f"| {name} | {row} | {fig} | {r['rms_a']:.4f} | {r['rms_b']:.4f} | {r['ratio']:.3f} "
                       f"({r['ratio_95'][0]:.3f}-{r['ratio_95'][1]:.3f}) | {r['verdict']} | "
                       f"{r['flips_a']} / {r['flips_b']} | {r['detected_a']} / {r['detected_b']} |", flush=True)
     rows = list(out[name].values())  # all looks together (the last entry)
     verdict = "replace" if any(r["verdict"] == "better" for r in rows) and not any(r["verdict"] == "worse" for r in rows) else "keep"
-    print(f"{a.b} against {a.a} over {name}: {verdict} the default")
+    b_name = a.b + "".join(f" {k}={v}" for k, v in a.metric_b)
+    print(f"{b_name} against {a.a} over {name}: {verdict} the default")
     if a.out:
-        a.out.write_text(json.dumps({"a": a.a, "b": a.b, "block": a.block, "draws": a.draws, "seed": a.seed,
+        a.out.write_text(json.dumps({"a": a.a, "b": a.b, "metric_b": metric_b, "block": a.block, "draws": a.draws, "seed": a.seed,
                                      "looks": out, "verdict": verdict}, indent=1))
 
 

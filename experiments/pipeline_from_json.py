@@ -1,7 +1,7 @@
 """The four module combinations' figures from stored per-frame estimates (no network runs here).
 
   python experiments/pipeline_from_json.py --set LABEL EVAL.json DATA [EVAL.json DATA ...] [--set ...]
-      [--thresholds 0.5 0.4 0.3] [--range-window auto|None|ROWS] [--out OUT.json]
+      [--thresholds 0.5 0.4 0.3] [--metric KEY JSON ...] [--out OUT.json]
 
 Each EVAL.json is an `evaluate --modules iml,ir,pgo --json` run on the BOP scene DATA (or
 `--modules iml`: then the IML and IML+PGO rows only). Per set (its
@@ -11,8 +11,10 @@ dx / dy (cm) over the detected frames, median abs dpsi (deg), ATE (as `evaluate`
 (> 90 deg) and detected of observed frames, median est/true range. With --thresholds, IML+PGO
 again with a frame called detected at o >= t (the pipeline's threshold is 0.5). Also how well the
 stored IML flip probability predicts IML's flips over the detected frames (`zoom.calibration_metrics`:
-Brier score, calibration error, ROC area), one line per set. --range-window refits the pose-graph
-rows with that range-model window (`PipelineConfig.range_window`) instead of the run's.
+Brier score, calibration error, ROC area), one line per set. `--metric KEY JSON` refits the pose-graph
+rows with the runs' stored metric KEY set to that value (e.g. `--metric range_window null`: one
+range-model transform for the whole sequence, `PipelineConfig.range_window`; `--metric
+range_window_max_scale 0.02`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ def pgo_config(metrics: dict | None, refined: bool = False) -> pipeline.Pipeline
     return pipeline.PipelineConfig(modules=("iml", "ir", "pgo") if refined else ("iml", "pgo"),
                                    pgo_mode=m.get("pgo_mode", "batch"),
                                    fusion=pgo.FusionConfig(information=m.get("information", "noise_model")),
-                                   calibrate_range=m.get("range_calibration", True), range_window=m.get("range_window"))
+                                   calibrate_range=m.get("range_calibration", True), range_window=m.get("range_window"),
+                                   range_window_max_scale=m.get("range_window_max_scale"))
 
 
 def fused(rows: list[dict], scene, key: str, detected: np.ndarray, metrics: dict | None = None) -> np.ndarray:
@@ -69,19 +72,31 @@ def summary(parts) -> dict:
             "observed": int(obs.sum()), "median_range_ratio": float(np.median(ratio)) if k.any() else None}
 
 
+def metric_overrides(ap: argparse.ArgumentParser, flag: str, pairs: list[list[str]]) -> dict:
+    """`flag KEY JSON` pairs -> {KEY: value} (stored metrics to override: `pgo_config` reads them);
+    an unknown key or a value that is not JSON ends the script with one line."""
+    known = ("pgo_mode", "information", "range_calibration", "range_window", "range_window_max_scale")
+    out = {}
+    for key, value in pairs:
+        if key not in known:
+            ap.error(f"{flag} {key}: not a pose-graph metric (one of {', '.join(known)})")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            ap.error(f"{flag} {key} {value}: the value is not JSON (null, 0.02, \"auto\", ...)")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", nargs="+", action="append", required=True, metavar="LABEL EVAL.json DATA",
                     help="a label, then pairs of evaluate --json output and its BOP data folder")
     ap.add_argument("--thresholds", nargs="+", type=float, default=())
-    ap.add_argument("--range-window", help="auto, None or a number of rows: the pose-graph rows' range window instead of the run's")
+    ap.add_argument("--metric", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
+                    help="the runs' stored metric KEY set to the JSON value before the pose-graph rows are refitted; repeatable")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    window = {None: {}, "auto": {"range_window": "auto"}, "None": {"range_window": None}}.get(a.range_window)
-    if window is None:
-        if not a.range_window.isdigit():
-            ap.error(f"--range-window {a.range_window}: expected auto, None or a number of rows")
-        window = {"range_window": int(a.range_window)}
+    override = metric_overrides(ap, "--metric", a.metric)
     out = {}
     for label, *rest in a.set:
         if not rest or len(rest) % 2:
@@ -90,7 +105,7 @@ def main() -> None:
         flip_prob, is_flip = [], []
         for js, data in zip(rest[::2], rest[1::2]):
             run = json.loads(Path(js).read_text())
-            rows, metrics = run["frames"], run["metrics"] | window
+            rows, metrics = run["frames"], run["metrics"] | override
             if "iml_est" not in rows[0]:
                 ap.error(f"{js}: no iml_est rows (run evaluate --modules iml[,ir,pgo])")
             scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])

@@ -43,7 +43,7 @@ for s in ours/circle ours/sine heldout/circle heldout/sine; do
 done
 sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_final_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_final_${set}_sine.json" "$DATA/$set/sine"); done
 [ -f "$RUNS/pipeline_test_final.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_final.json"
-[ -f "$RUNS/pipeline_test_final_nowindow.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --range-window None --out "$RUNS/pipeline_test_final_nowindow.json"
+[ -f "$RUNS/pipeline_test_final_nowindow.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --metric range_window null --out "$RUNS/pipeline_test_final_nowindow.json"
 for set in ours heldout; do
   out="$RUNS/bench_test_final_$set.json"
   [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \

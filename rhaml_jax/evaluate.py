@@ -90,6 +90,9 @@ class Args:
     range_window: int | None | Literal["auto"] = "auto"
     """pgo (batch): rows per transform of the range calibration (`PipelineConfig.range_window`;
     auto: 200 for refined estimates, the whole sequence for IML's; None: the whole sequence)"""
+    range_window_max_scale: float | None = 0.02
+    """pgo (batch), with a range window: the window only where the whole sequence's calibration finds
+    the range off by less than this (`PipelineConfig.range_window_max_scale`); None: always"""
     batch: int = 32
     """frames per network call"""
     allow_other_robot: bool = False
@@ -162,7 +165,7 @@ def _load(args: Args, modules):
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   calibrate_range=not args.no_range_calibration, range_window=args.range_window,
-                                  redetect_threshold=args.redetect_threshold)
+                                  range_window_max_scale=args.range_window_max_scale, redetect_threshold=args.redetect_threshold)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
 
 
@@ -200,6 +203,7 @@ def run(args: Args) -> dict:
         m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold,
               "information": "paper" if args.paper_information else "noise_model",
               "range_calibration": not args.no_range_calibration, "range_window": args.range_window,
+              "range_window_max_scale": args.range_window_max_scale,
               "pgo_rejected": int(sum(r["detected"] and not r["pgo_inlier"] for r in rows)),
               "range_model": [[float(v) for v in r.result.range_model] for r in runs]}
     return {"metrics": m, "frames": rows}

@@ -33,12 +33,17 @@ from rhaml_jax.errors import RhamlError
 from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
-__all__ = ["MODULES", "RANGE_WINDOW_REFINED", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
+__all__ = ["MODULES", "RANGE_WINDOW_MAX_SCALE", "RANGE_WINDOW_REFINED", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
            "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
 
 MODULES = ("iml", "ir", "pgo")
 RANGE_WINDOW_REFINED = 200  # rows per transform of the range model for refined estimates (PipelineConfig.range_window)
 MIN_RANGE_WINDOW = 10  # fewer rows per window leave the scale to the prior
+# the range window only where the whole sequence's calibration finds the range off by less than
+# this (PipelineConfig.range_window_max_scale): our look's refined ranges are within 0.1-0.5 %,
+# a look the refiner does not read several percent off (BENCHMARKS.md, "The range window only for
+# small scales")
+RANGE_WINDOW_MAX_SCALE = 0.02
 REDETECT_HEADING_DEG = 30.0  # the re-detection gate's heading tolerance, modulo 180 deg (the graph tries both)
 
 
@@ -75,6 +80,10 @@ class PipelineConfig:
     # IML's own, whose range error grows with the range and needs the whole path to be seen
     # (BENCHMARKS.md, "The range calibration read the odometry's drift")
     range_window: int | None | Literal["auto"] = "auto"
+    # batch pgo with a range window: the windowed fit only where the whole sequence's finds the
+    # range off by less than this (|c_0|); else the whole sequence's (`pgo.fuse_calibrated`'s
+    # window_max_scale; windows take up part of a large scale). None: the window always
+    range_window_max_scale: float | None = RANGE_WINDOW_MAX_SCALE
     # pgo: a second, lower objectness threshold. Frames scored in [redetect_threshold,
     # DETECTION_THRESHOLD) are refined (ir) and called detected where their estimate agrees with
     # the pose graph fused from the confident frames (position within redetect_gate of its range,
@@ -90,6 +99,8 @@ class PipelineConfig:
         if not (self.range_window is None or self.range_window == "auto"
                 or (isinstance(self.range_window, int) and self.range_window >= MIN_RANGE_WINDOW)):
             raise RhamlError(f"range_window {self.range_window!r}: expected None, 'auto' or a number of rows >= {MIN_RANGE_WINDOW}")
+        if self.range_window_max_scale is not None and not 0.0 < self.range_window_max_scale <= pgo.MAX_LOG_SCALE:
+            raise RhamlError(f"range_window_max_scale {self.range_window_max_scale!r}: expected None or a number in (0, {pgo.MAX_LOG_SCALE}]")
         if self.pgo_mode not in ("batch", "online"):
             raise RhamlError(f"pgo_mode {self.pgo_mode!r}: expected 'batch' or 'online'")
         if self.chunk < 1:
@@ -230,7 +241,8 @@ def _fuse(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observ
         # circle under one XLA compilation, not in another: an open numerical issue of fuse_online)
         return fusion, c, (jnp.cumsum(detected) > 0) & jnp.all(jnp.isfinite(fusion.relative), -1), detected
     if cfg.calibrate_range:
-        fusion, c = pgo.fuse_calibrated(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob, window=cfg.calibration_window)
+        fusion, c = pgo.fuse_calibrated(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob, window=cfg.calibration_window,
+                                        window_max_scale=cfg.range_window_max_scale)
     else:
         fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry

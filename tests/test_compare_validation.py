@@ -57,13 +57,15 @@ def test_blocks_cover_the_sequence_and_stay_inside_it():
 
 
 def test_an_extra_sequence_must_name_a_look(tmp_path, monkeypatch, capsys):
-    """`--extra LOOK SET` must name a look: otherwise one clear line, exit status 2, as for a
-    label whose runs are missing (the file it looked for named)."""
+    """`--extra LOOK SET` must name a look and `--metric-b` a pose-graph metric and a JSON value: otherwise one clear
+    line, exit status 2, as for a label whose runs are missing (the file it looked for named)."""
     import pytest
 
     cv = _cv()
     for argv, msg in ((["a", "b", "--extra", "nope", "val_x/circle"], "no look 'nope'"),
-                      (["a", "b", "--looks", "ood", "--extra", "ood", "val_x/circle", "--ev", str(tmp_path)], "a_val_ood_circle.json: not found")):
+                      (["a", "b", "--looks", "ood", "--extra", "ood", "val_x/circle", "--ev", str(tmp_path)], "a_val_ood_circle.json: not found"),
+                      (["a", "a", "--metric-b", "range_window_max_scale", "two"], "the value is not JSON"),
+                      (["a", "a", "--metric-b", "range_windw", "null"], "not a pose-graph metric")):
         monkeypatch.setattr(sys, "argv", ["compare_validation.py", *argv])
         with pytest.raises(SystemExit) as e:
             cv.main()

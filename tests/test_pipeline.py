@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -292,6 +293,12 @@ def test_range_window_follows_the_modules():
     for bad in (3, "sometimes", 100.0):
         with pytest.raises(RhamlError, match="range_window"):
             pipeline.PipelineConfig(range_window=bad)
+    for bad in (0.0, -0.02, 0.5):
+        with pytest.raises(RhamlError, match="range_window_max_scale"):
+            pipeline.PipelineConfig(range_window_max_scale=bad)
+    from rhaml_jax import evaluate  # its CLI default is the pipeline's (it does not import the pipeline early)
+
+    assert evaluate.Args(data=Path(".")).range_window_max_scale == pipeline.RANGE_WINDOW_MAX_SCALE
 
 
 @pytest.mark.parametrize("mode", ["batch", "online"])

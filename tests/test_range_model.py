@@ -119,3 +119,33 @@ def test_a_window_keeps_the_odometrys_drift_out_of_the_scale():
                 errors[window].append(abs(float(fit(rv, pgo.FusionConfig(), window=window)[1][0]) - np.log(scale)))
     assert max(errors[200]) < 0.0025, errors[200]
     assert sum(errors[200]) < 0.5 * sum(errors[None]) and max(errors[None]) > 0.004, errors
+
+
+def test_drift_tie_between_windows_spans_window_and_whole_sequence():
+    """`drift_sigma` ties consecutive windows' transforms: loose, the fit is the windowed one; tight,
+    the windows move as one and the fit is the whole sequence's (up to the weak pull to the fused
+    transform); in between it differs from both."""
+    truth = circle(300)
+    rv = _rendezvous(truth[:, :2] * 1.03, noisy_odometry(truth, seed=2), truth[:, 2])
+    fit = jax.jit(pgo.range_model, static_argnames=("window", "drift_sigma"))
+    F, w = jnp.zeros(3), jnp.ones(300)
+    windowed, whole = fit(rv, F, w, window=50)[0], fit(rv, F, w)[0]
+    assert abs(float(windowed - whole)) > 1e-3, (windowed, whole)  # the check below can tell them apart
+    np.testing.assert_allclose(fit(rv, F, w, window=50, drift_sigma=(1e3, 1e3, 1e3))[0], windowed, atol=2e-5)
+    np.testing.assert_allclose(fit(rv, F, w, window=50, drift_sigma=(1e-5, 1e-5, 1e-5))[0], whole, atol=3e-4)
+    mid = fit(rv, F, w, window=50, drift_sigma=(0.02, 0.02, 0.005))[0]
+    assert min(abs(float(mid - windowed)), abs(float(mid - whole))) > 1e-5
+
+
+def test_window_max_scale_keeps_the_whole_sequences_fit_for_a_large_scale():
+    """`window_max_scale`: the windowed calibration where the whole sequence's fit finds a small
+    scale, the whole sequence's where it finds a larger one (a look the localiser does not read)."""
+    truth = circle(400)
+    fit = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "window", "window_max_scale"))
+    odom = noisy_odometry(truth, seed=4)
+    for scale in (1.005, 1.10):
+        rv = _rendezvous(truth[:, :2] * scale, odom, truth[:, 2])
+        whole, windowed = fit(rv, pgo.FusionConfig())[1], fit(rv, pgo.FusionConfig(), window=100)[1]
+        assert abs(float(whole[0] - windowed[0])) > 1e-4, (scale, whole, windowed)  # the two differ
+        picked = fit(rv, pgo.FusionConfig(), window=100, window_max_scale=0.02)[1]
+        np.testing.assert_allclose(picked, windowed if scale < 1.02 else whole, atol=1e-7)

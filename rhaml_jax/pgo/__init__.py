@@ -56,14 +56,14 @@ from ._rhaml_graph import (
     rhaml_pgo_jit,
     rhaml_pose_graph,
 )
-from ._scale import MIN_SUPPORT, RANGE_R0_M, fuse_calibrated, range_model, rescale_observations
+from ._scale import MAX_LOG_SCALE, MIN_SUPPORT, RANGE_R0_M, fuse_calibrated, range_model, rescale_observations
 from ._simulate import simulate_rendezvous
 from ._solver import graph_cost, optimize
 from ._types import PoseGraph, SolverConfig, SolveResult
 from ._validate import validate_graph
 
 __all__ = [
-    "MIN_SUPPORT", "RANGE_R0_M", "fuse_calibrated", "range_model", "rescale_observations", "simulate_rendezvous",
+    "MAX_LOG_SCALE", "MIN_SUPPORT", "RANGE_R0_M", "fuse_calibrated", "range_model", "rescale_observations", "simulate_rendezvous",
     "PoseGraph", "SolverConfig", "SolveResult",
     "read_g2o", "write_g2o", "parse_g2o", "format_g2o", "validate_graph",
     "optimize", "graph_cost", "chordal_initialization",

@@ -24,7 +24,10 @@ sequences as observations it read +0.2 to +0.4 %, more than the refiner's own ra
 `window` fits one F per that many consecutive rows with the scale shared (a weak prior ties
 each F to the fused one): drift within a window is small, and the window's path still shows the
 scale (the pipeline's default for refined estimates: 200 rows; BENCHMARKS.md, "The range
-calibration read the odometry's drift").
+calibration read the odometry's drift"). But windows also take up part of a large scale: where the
+whole sequence's fit finds more than `window_max_scale` (the pipeline: 2 %, where the refiner no
+longer reads the look) the whole sequence's fit is kept (BENCHMARKS.md, "The range window only
+for small scales").
 
 The observations' errors are taken as relative by default (`relative=True`: sigma = obs_sigma_m
 rho / R0, a monocular range read a percentage off), which weights the far observations, whose
@@ -51,7 +54,7 @@ from rhaml_jax.planar import between, compose
 from ._fusion import FusionConfig, FusionResult, fuse
 from ._rhaml_graph import Rendezvous, _planar
 
-__all__ = ["MIN_SUPPORT", "RANGE_R0_M", "fuse_calibrated", "range_model", "rescale_observations"]
+__all__ = ["MAX_LOG_SCALE", "MIN_SUPPORT", "RANGE_R0_M", "fuse_calibrated", "range_model", "rescale_observations"]
 
 RANGE_R0_M = 4.5
 MAX_LOG_SCALE = 0.3  # a range error beyond +-35 % is no calibration but a localiser that failed
@@ -66,11 +69,12 @@ def _log_ratio(c, r):
 
 def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, obs_sigma_m: float = 0.1,
                 prior_sigma=(0.1, 0.05), slope: bool = False, iterations: int = 8, relative: bool = True,
-                window: int | None = None) -> jax.Array:
+                window: int | None = None, drift_sigma: tuple[float, float, float] | None = None) -> jax.Array:
     """(2,) coefficients c of rho = r exp(c_0 + c_1 (r - R0)) from rows with `weights` (K,) (e.g.
     the fusion's inliers), starting from the fused transform between the odometry frames (3,);
     c_1 = 0 unless `slope`; `window`: rows per window of consecutive rows, each with its own
-    transform (None: one for all). Pure JAX, fixed iteration count, differentiable."""
+    transform (None: one for all); `drift_sigma` (m, m, rad): consecutive windows' transforms also
+    tied to each other by that much (a random walk, as odometry drifts). Pure JAX, fixed iteration count, differentiable."""
     z = _planar(rv.observation)[:, 2:]  # (K, 2) observed x, y
     oa, ob = rv.odom_a[1:], rv.odom_b[1:]
     K = z.shape[0]
@@ -98,6 +102,8 @@ def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, 
         r = jnp.sqrt(jnp.sum(rel**2, -1) + 1e-12)  # guard: finite gradient with the robots at one spot
         pred = rel * jnp.exp(_log_ratio(coefficients(theta), r))[:, None]
         pull = ((F - odom_a_T_odom_b) / F_sigma).reshape(-1) if M > 1 else jnp.zeros((0,), z.dtype)
+        if drift_sigma is not None and M > 1:
+            pull = jnp.concatenate([pull, ((F[1:] - F[:-1]) / jnp.asarray(drift_sigma, z.dtype)).reshape(-1)])
         return jnp.concatenate([(w * (z - pred)).reshape(-1), pull, theta[3 * M:] / prior])
 
     def step(theta, _):
@@ -131,18 +137,30 @@ def rescale_observations(rv: Rendezvous, c: jax.Array, iterations: int = 6) -> R
 
 def fuse_calibrated(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: jax.Array | None = None,
                     flip_prob: jax.Array | None = None, relative: bool = True, slope: bool = False,
-                    min_support: float = MIN_SUPPORT, window: int | None = None) -> tuple[FusionResult, jax.Array]:
+                    min_support: float = MIN_SUPPORT, window: int | None = None,
+                    drift_sigma: tuple[float, float, float] | None = None,
+                    window_max_scale: float | None = None) -> tuple[FusionResult, jax.Array]:
     """`fuse`, the range model fitted on its inliers (`range_model`), and `fuse` again on the
     rescaled observations -> (fusion, c (2,)). The calibrated fusion is kept only if it keeps
-    at least `min_support` of the valid rows (K,); else the first fusion and c = 0. Jit with
-    cfg, relative, slope static."""
+    at least `min_support` of the valid rows (K,); else the first fusion and c = 0.
+    `window_max_scale`: with a `window`, the windowed fit only where the whole sequence's fit finds
+    |c_0| under it; else the whole sequence's (a localiser that does not read the look reads
+    ranges several percent off, a scale one transform fits better than windows that can take part
+    of it up). Jit with cfg, relative, slope, window, drift_sigma, window_max_scale static."""
     valid = jnp.ones(rv.observation.shape[0], bool) if valid is None else valid
+    if window is not None and window_max_scale is not None:
+        kw = dict(cfg=cfg, valid=valid, flip_prob=flip_prob, relative=relative, slope=slope, min_support=min_support)
+        whole, c_whole = fuse_calibrated(rv, **kw)
+        windowed, c_win = fuse_calibrated(rv, **kw, window=window, drift_sigma=drift_sigma)
+        use = jnp.abs(c_whole[0]) < window_max_scale
+        return jax.tree.map(lambda a, b: jnp.where(use, a, b), (windowed, c_win), (whole, c_whole))
     first = fuse(rv, cfg, valid=valid, flip_prob=flip_prob)
     used = (first.inlier & valid).astype(rv.observation.dtype)
     # guard: with no inlier the transform is undetermined (NaN); fit from the identity then
     # (the cost guard inside range_model refuses it, and the support test below too)
     F = jnp.where(jnp.any(used > 0), first.odom_a_T_odom_b, 0.0)
-    c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope, window=window)
+    c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope, window=window,
+                    drift_sigma=drift_sigma)
     second = fuse(rescale_observations(rv, c), cfg, valid=valid, flip_prob=flip_prob)
     support = jnp.sum(second.inlier & valid) / jnp.maximum(jnp.sum(valid), 1)
     keep = (support >= min_support) & jnp.any(c != 0)
