@@ -2,7 +2,7 @@
 
     python experiments/compare_validation.py A B [--looks ours ood mono] [--ev /work/runs/validation]
         [--data /work/data] [--block 25] [--draws 2000] [--seed 0] [--extra LOOK SET ...]
-        [--metric-b KEY JSON ...] [--out OUT.json]
+        [--metric-a KEY JSON ...] [--metric-b KEY JSON ...] [--out OUT.json]
 
 A and B are labels of `experiments/validate_networks.sh` runs (EV/{label}_{set}.json). Per row
 (IML, IML+PGO, IML+IR, IML+IR+PGO; the pose-graph rows refitted from the stored estimates as
@@ -121,12 +121,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--extra", nargs=2, action="append", default=[], metavar=("LOOK", "SET"),
                     help="also count SET (a folder under --data, scored as EV/LABEL_SET.json) in LOOK; repeatable")
-    ap.add_argument("--metric-b", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
-                    help="B's stored metric KEY set to the JSON value before its pose-graph rows are refitted "
-                         "(a pose-graph setting compared on the same estimates: B may be A's label); repeatable")
+    for role in "ab":
+        ap.add_argument(f"--metric-{role}", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
+                        help=f"{role.upper()}'s stored metric KEY set to the JSON value before its pose-graph rows are "
+                             "refitted (a pose-graph setting compared on the same estimates: A and B may be one label); repeatable")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    metric_b = metric_overrides(ap, "--metric-b", a.metric_b)
+    metric = {role: metric_overrides(ap, f"--metric-{role}", getattr(a, f"metric_{role}")) for role in "ab"}
     if a.block < 1 or a.draws < 100:
         ap.error("--block must be >= 1 and --draws >= 100")
     looks_sets = {look: list(sets) for look, sets in LOOKS.items()}
@@ -141,7 +142,7 @@ def main() -> None:
                 path = a.ev / f"{label}_{s.replace('/', '_')}.json"
                 if not path.exists():
                     ap.error(f"{path}: not found (run LABEL={label} experiments/validate_networks.sh)")
-                runs[role, s] = per_frame(path, a.data / s, metric_b if role == "b" else None)
+                runs[role, s] = per_frame(path, a.data / s, metric[role])
                 if role == "b" and len(runs["a", s]["IML"]["q"]["ATE"]) != len(runs["b", s]["IML"]["q"]["ATE"]):
                     ap.error(f"{s}: the two labels' runs cover different frames")
     out = {}
@@ -166,10 +167,10 @@ def main() -> None:
                       f"{r['flips_a']} / {r['flips_b']} | {r['detected_a']} / {r['detected_b']} |", flush=True)
     rows = list(out[name].values())  # all looks together (the last entry)
     verdict = "replace" if any(r["verdict"] == "better" for r in rows) and not any(r["verdict"] == "worse" for r in rows) else "keep"
-    b_name = a.b + "".join(f" {k}={v}" for k, v in a.metric_b)
-    print(f"{b_name} against {a.a} over {name}: {verdict} the default")
+    named = {role: label + "".join(f" {k}={v}" for k, v in getattr(a, f"metric_{role}")) for role, label in (("a", a.a), ("b", a.b))}
+    print(f"{named['b']} against {named['a']} over {name}: {verdict} the default")
     if a.out:
-        a.out.write_text(json.dumps({"a": a.a, "b": a.b, "metric_b": metric_b, "block": a.block, "draws": a.draws, "seed": a.seed,
+        a.out.write_text(json.dumps({"a": a.a, "b": a.b, "metric_a": metric["a"], "metric_b": metric["b"], "block": a.block, "draws": a.draws, "seed": a.seed,
                                      "looks": out, "verdict": verdict}, indent=1))
 
 

@@ -74,7 +74,8 @@ def range_model(rv: Rendezvous, odom_a_T_odom_b: jax.Array, weights: jax.Array, 
     the fusion's inliers), starting from the fused transform between the odometry frames (3,);
     c_1 = 0 unless `slope`; `window`: rows per window of consecutive rows, each with its own
     transform (None: one for all); `drift_sigma` (m, m, rad): consecutive windows' transforms also
-    tied to each other by that much (a random walk, as odometry drifts). Pure JAX, fixed iteration count, differentiable."""
+    tied to each other by that much (a random walk, as odometry drifts). Pure JAX, fixed iteration
+    count, differentiable."""
     z = _planar(rv.observation)[:, 2:]  # (K, 2) observed x, y
     oa, ob = rv.odom_a[1:], rv.odom_b[1:]
     K = z.shape[0]
