@@ -46,6 +46,10 @@ def fused(rows: list[dict], scene, key: str, variants: list[str]) -> tuple[dict,
     for v in variants:
         kw = dict(VARIANTS[v])
         c = jnp.zeros(2)
+        if kw.pop("search", False):  # start from the grid scale whose fusion keeps the most rows (ties: the smallest)
+            kept_at = [int(jnp.sum(FUSE(pgo.rescale_observations(rv, jnp.array([g, 0.0])), cfg, valid=det, flip_prob=flip).inlier & det))
+                       for g in SCALE_GRID]
+            c = jnp.array([SCALE_GRID[int(np.argmax(np.asarray(kept_at) - 1e-3 * np.abs(SCALE_GRID)))], 0.0])
         for _ in range(kw.pop("rounds", 1)):  # each round fits what the last one's rescaling left (c_1 = 0)
             fusion, dc = FUSE_CALIBRATED(pgo.rescale_observations(rv, c), cfg, det, flip, **kw)
             c = c + dc
@@ -61,6 +65,10 @@ DRIFT = {"s": (0.02, 0.02, 0.005), "m": (0.05, 0.05, 0.01), "l": (0.15, 0.15, 0.
 VARIANTS |= {f"walk{w}{k}": dict(window=w, drift_sigma=d) for w in (50, 100, 200) for k, d in DRIFT.items()}
 VARIANTS |= {f"{v}_r{n}": VARIANTS[v] | dict(rounds=n) for v in ("relative", "window200", "walk200s") for n in (2, 3)}
 VARIANTS |= {f"hybrid{t}": dict(window=200, window_max_scale=t / 100) for t in (2, 5, 10)}
+# scale search: the log scales tried before the fit (whole range the guard allows, 5 % apart)
+SCALE_GRID = np.round(np.arange(-0.3, 0.301, 0.05), 3)
+VARIANTS |= {"search": dict(search=True), "search_hybrid2": dict(search=True, window=200, window_max_scale=0.02)}
+FUSE = jax.jit(pgo.fuse, static_argnames=("cfg",))
 FUSE_CALIBRATED = jax.jit(pgo.fuse_calibrated, static_argnames=("cfg", "relative", "slope", "window", "drift_sigma", "window_max_scale"))
 
 
