@@ -57,8 +57,9 @@ def test_blocks_cover_the_sequence_and_stay_inside_it():
 
 
 def test_an_extra_sequence_must_name_a_look(tmp_path, monkeypatch, capsys):
-    """`--extra LOOK SET` must name a look and `--metric-b` a pose-graph metric and a JSON value: otherwise one clear
-    line, exit status 2, as for a label whose runs are missing (the file it looked for named)."""
+    """`--extra LOOK SET` must name a look, and `--metric-b` a pose-graph metric and a JSON value:
+    otherwise one clear line, exit status 2, as for a label whose runs are missing (the file it
+    looked for named)."""
     import pytest
 
     cv = _cv()
