@@ -149,20 +149,22 @@ def fuse_calibrated(rv: Rendezvous, cfg: FusionConfig = FusionConfig(), valid: j
     ranges several percent off, a scale one transform fits better than windows that can take part
     of it up). Jit with cfg, relative, slope, window, drift_sigma, window_max_scale static."""
     valid = jnp.ones(rv.observation.shape[0], bool) if valid is None else valid
-    if window is not None and window_max_scale is not None:
-        kw = dict(cfg=cfg, valid=valid, flip_prob=flip_prob, relative=relative, slope=slope, min_support=min_support)
-        whole, c_whole = fuse_calibrated(rv, **kw)
-        windowed, c_win = fuse_calibrated(rv, **kw, window=window, drift_sigma=drift_sigma)
-        use = jnp.abs(c_whole[0]) < window_max_scale
-        return jax.tree.map(lambda a, b: jnp.where(use, a, b), (windowed, c_win), (whole, c_whole))
     first = fuse(rv, cfg, valid=valid, flip_prob=flip_prob)
     used = (first.inlier & valid).astype(rv.observation.dtype)
     # guard: with no inlier the transform is undetermined (NaN); fit from the identity then
     # (the cost guard inside range_model refuses it, and the support test below too)
     F = jnp.where(jnp.any(used > 0), first.odom_a_T_odom_b, 0.0)
-    c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope, window=window,
-                    drift_sigma=drift_sigma)
-    second = fuse(rescale_observations(rv, c), cfg, valid=valid, flip_prob=flip_prob)
-    support = jnp.sum(second.inlier & valid) / jnp.maximum(jnp.sum(valid), 1)
-    keep = (support >= min_support) & jnp.any(c != 0)
-    return jax.tree.map(lambda a, b: jnp.where(keep, a, b), second, first), jnp.where(keep, c, 0.0)
+
+    def calibrated(window, drift_sigma):  # the fit on the first fusion's inliers, the fusion again
+        c = range_model(rv, F, used, cfg.obs_sigma_xy_m, relative=relative, slope=slope, window=window,
+                        drift_sigma=drift_sigma)
+        second = fuse(rescale_observations(rv, c), cfg, valid=valid, flip_prob=flip_prob)
+        support = jnp.sum(second.inlier & valid) / jnp.maximum(jnp.sum(valid), 1)
+        keep = (support >= min_support) & jnp.any(c != 0)
+        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), second, first), jnp.where(keep, c, 0.0)
+
+    result = calibrated(window, drift_sigma)
+    if window is not None and window_max_scale is not None:
+        whole = calibrated(None, None)
+        result = jax.tree.map(lambda a, b: jnp.where(jnp.abs(whole[1][0]) < window_max_scale, a, b), result, whole)
+    return result
