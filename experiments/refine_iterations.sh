@@ -18,15 +18,5 @@ done; done; done
 # and held-out sets, reported only: the whole pipeline, then issue 15's table (from the paper's noise and
 # from the IML, every 5th frame the IML detected). Session 39's runs of retrain_fine_plain.sh are the
 # one-iteration column.
-for s in ours/circle ours/sine heldout/circle heldout/sine; do
-  j="$OUT/test_fine_iter2_$(echo $s | tr / _).json"
-  [ -f "$j" ] || "$PY" -m rhaml_jax.evaluate --data "$DATA/$s" --modules iml,ir,pgo --zoom-mirror \
-    --fine-refiner rhaml_jax/checkpoints/refiner_fine_long_cpu --fine-iter 2 --json "$j" > "${j%.json}.log"
-done
-for set in ours heldout; do
-  out="$OUT/bench_test_fine_iter2_$set.json"
-  [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
-    --iml-json "$OUT/test_fine_iter2_${set}_circle.json" "$OUT/test_fine_iter2_${set}_sine.json" --starts noise iml --stride 5 \
-    --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner rhaml_jax/checkpoints/refiner_fine_long_cpu --fine-iter 2 \
-    --no-oracle --json "$out"
-done
+RUNS="$OUT"; . "$(dirname "$0")/_test_sets.sh"
+test_sets fine_iter2 rhaml_jax/checkpoints/refiner_fine_long_cpu 2

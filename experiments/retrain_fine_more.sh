@@ -37,17 +37,8 @@ done
 # refiner_fine_more_cpu, two fine iterations, range_window auto), its pose-graph rows refitted without the
 # window, then issue 15's table (bench_refine.py from the paper's noise and from the IML, every 5th frame the
 # IML detected).
-for s in ours/circle ours/sine heldout/circle heldout/sine; do
-  j="$RUNS/test_final_$(echo $s | tr / _).json"
-  [ -f "$j" ] || "$PY" -m rhaml_jax.evaluate --data "$DATA/$s" --modules iml,ir,pgo --zoom-mirror --json "$j" > "${j%.json}.log"
-done
+. "$(dirname "$0")/_test_sets.sh"
+test_sets final rhaml_jax/checkpoints/refiner_fine_more_cpu 2 --range-window-max-scale None  # session 40's pose graph: the window always
 sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_final_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_final_${set}_sine.json" "$DATA/$set/sine"); done
 [ -f "$RUNS/pipeline_test_final.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_final.json"
 [ -f "$RUNS/pipeline_test_final_nowindow.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --metric range_window null --out "$RUNS/pipeline_test_final_nowindow.json"
-for set in ours heldout; do
-  out="$RUNS/bench_test_final_$set.json"
-  [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
-    --iml-json "$RUNS/test_final_${set}_circle.json" "$RUNS/test_final_${set}_sine.json" --starts noise iml --stride 5 \
-    --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner rhaml_jax/checkpoints/refiner_fine_more_cpu --fine-iter 2 \
-    --no-oracle --json "$out"
-done

@@ -43,16 +43,7 @@ bench fine_mix "$RUNS/export/fine_mix"
 # networks + fine, then experiments/compare_validation.py), the test and held-out sets, reported only:
 # the whole pipeline with the old and the new fine refiner, then issue 15's table (bench_refine.py from
 # the paper's noise and from the IML, every 5th frame the IML detected).
-for fine in refiner_fine_cpu refiner_fine_long_cpu; do
-  for s in ours/circle ours/sine heldout/circle heldout/sine; do
-    j="$RUNS/test_${fine}_$(echo $s | tr / _).json"
-    [ -f "$j" ] || "$PY" -m rhaml_jax.evaluate --data "$DATA/$s" --modules iml,ir,pgo --zoom-mirror \
-      --fine-refiner "rhaml_jax/checkpoints/$fine" --json "$j" > "${j%.json}.log"
-  done
-  for set in ours heldout; do
-    out="$RUNS/bench_test_${fine}_$set.json"
-    [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
-      --iml-json "$RUNS/test_${fine}_${set}_circle.json" "$RUNS/test_${fine}_${set}_sine.json" --starts noise iml --stride 5 \
-      --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "rhaml_jax/checkpoints/$fine" --no-oracle --json "$out"
-  done
+. "$(dirname "$0")/_test_sets.sh"
+for fine in refiner_fine_cpu refiner_fine_long_cpu; do  # one fine iteration, session 39's default
+  test_sets "$fine" "rhaml_jax/checkpoints/$fine" 1
 done
