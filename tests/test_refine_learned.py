@@ -167,7 +167,8 @@ def test_the_disentangled_loss_weighs_its_parts():
     np.testing.assert_allclose(np.asarray(ratio), 10.0, rtol=1e-4)
 
 
-@pytest.mark.parametrize("bad", [{"loss": "l2"}, {"part_weights": (1.0, -1.0, 1.0)}, {"part_weights": (0.0, 0.0, 0.0)}])
+@pytest.mark.parametrize("bad", [{"loss": "l2"}, {"part_weights": (1.0, -1.0, 1.0)}, {"part_weights": (0.0, 0.0, 0.0)},
+                                 {"native": 16}])
 def test_a_bad_loss_setting_is_refused(bad):
     with pytest.raises(RhamlError, match="RefinerConfig"):
         N.RefinerConfig(**bad)
@@ -217,6 +218,44 @@ def test_a_luma_refiner_reads_luminance_only(bop_set):
         outs[luma] = [np.asarray(N.apply(cfg, params, x).update) for x in (xa, xb)]
     np.testing.assert_allclose(outs[True][0], outs[True][1], atol=1e-5)
     assert np.abs(outs[False][0] - outs[False][1]).max() > 1e-4
+
+
+def test_a_native_render_is_the_full_image_render_cropped_as_the_observed_image_is(bop_set):
+    """`RefinerConfig.native`: for a far robot (a box smaller than the crop: magnified) the render
+    in the crop equals the whole image rendered at its pixel centres and then cropped by
+    `crop.crop_image` (what the observed crop is); the crop-resolution render differs from it at
+    the silhouette's edges. For a nearer one (a box larger than the crop: shrunk) it is closer to
+    it than the crop-resolution render; where the box is wider than the window, it is the
+    crop-resolution render."""
+    from rhaml_jax import crop as C
+    from rhaml_jax.refine.train import render_crop
+
+    mesh = render.as_mesh(load_bop_model(bop_set))
+    cam = DEFAULT_CAMERA.resized(160, 120)
+    K = jnp.asarray(cam.K, jnp.float32)
+    cfg = N.get_refiner_config("refiner_micro_native")  # crop 32, window 48
+    direct_cfg = dataclasses.replace(cfg, native=0)
+    corners = jnp.asarray(np.array(np.meshgrid(*zip(mesh.vertices.min(0), mesh.vertices.max(0)), indexing="ij")).reshape(3, -1).T)
+    for xypsi, kind in (([6.0, 0.3, 0.4], "magnified"), ([2.0, -0.1, 1.2], "shrunk"), ([0.9, 0.0, 0.2], "too wide")):
+        T = camera.T_cam_robot(0.3) @ frames.se3_from_xypsi(jnp.asarray(xypsi, jnp.float32))
+        box = C.object_box(K, T @ corners, margin=1.2)
+        side = float(jnp.maximum(box[2] - box[0], box[3] - box[1]))
+        assert (side < cfg.crop, side <= cfg.native - 2) == {"magnified": (True, True), "shrunk": (False, True), "too wide": (False, False)}[kind]
+        T1, b1 = jaxlie.SE3(T.wxyz_xyz[None]), box[None]
+        rgb, mask = render_crop(mesh, cfg, T1, K, b1)
+        full = render.render(mesh, T, K, cam.width, cam.height)
+        ref = np.asarray(C.crop_image(jnp.concatenate([full.rgb, full.mask[..., None].astype(jnp.float32)], -1), box, cfg.crop, cfg.crop))
+        d_rgb, d_mask = render_crop(mesh, direct_cfg, T1, K, b1)
+        err, err_direct = np.abs(np.asarray(mask[0]) - ref[..., 3]).mean(), np.abs(np.asarray(d_mask[0]) - ref[..., 3]).mean()
+        if kind == "magnified":
+            np.testing.assert_allclose(np.asarray(mask[0]), ref[..., 3], atol=1e-4)
+            assert np.mean(np.abs(np.asarray(rgb[0]) - ref[..., :3]) < 1e-3) > 0.99  # ties between coplanar faces aside
+            assert err_direct > 1e-2
+        elif kind == "shrunk":  # the area filter's grid is the window's, not the whole image's
+            assert err < 0.5 * err_direct, (err, err_direct)
+        else:
+            np.testing.assert_array_equal(np.asarray(mask), np.asarray(d_mask))
+            np.testing.assert_array_equal(np.asarray(rgb), np.asarray(d_rgb))
 
 
 def test_the_papers_position_noise_scales_with_the_robot(bop_set):

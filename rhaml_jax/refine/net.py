@@ -62,6 +62,14 @@ class RefinerConfig:
     """the initial poses it trains from (`refine.train.initial_pose`): "coarse" (the paper's noise
     and our IML's errors, flips included) or "fine" (what a coarse refiner's iterations leave:
     centimetres and a few degrees), the second stage of a cascade (`RefineConfig.fine_iter`)"""
+    native: int = 0
+    """0: the render is made at the crop's resolution (DeepIM). N > 0: made at the image's own
+    pixel centres in an N x N window around the crop box, then resampled into the crop as the
+    observed crop is (`crop.crop_image`), so that the two compare like with like: the same
+    pixel grid, the same quantised edges, the same filter. Exact for a box smaller than the crop
+    (the far robots it is for); for a larger one the area filter's grid is the window's, not the
+    image's, and the image's border is not repeated; boxes wider than N - 2 px fall back to the
+    crop-resolution render. `refine.train.render_crop`"""
 
     def __post_init__(self):
         from rhaml_jax.errors import RhamlError
@@ -72,6 +80,8 @@ class RefinerConfig:
             raise RhamlError(f"RefinerConfig.part_weights {self.part_weights}: expected three weights >= 0, one > 0")
         if self.starts not in ("coarse", "fine"):
             raise RhamlError(f"RefinerConfig.starts {self.starts!r}: expected 'coarse' or 'fine'")
+        if self.native and self.native < self.crop:
+            raise RhamlError(f"RefinerConfig.native {self.native}: expected 0 or a window of at least the crop ({self.crop} px)")
 
 
 def luminance(rgb):
@@ -88,9 +98,13 @@ def in_channels(cfg) -> int:
 REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerConfig(name="refiner_cpu_luma", luma=True),
                    # the cascade's second stage: refiner_cpu's network on a tighter crop, trained from fine starts
                    "refiner_fine_cpu": RefinerConfig(name="refiner_fine_cpu", margin=1.2, starts="fine"),
+                   # the same on renders at the image's pixel centres (session 42)
+                   "refiner_fine_native_cpu": RefinerConfig(name="refiner_fine_native_cpu", margin=1.2, starts="fine", native=128),
                    "refiner_micro": RefinerConfig(name="refiner_micro", crop=32, widths=(8, 16), hidden=32, n_points=64),
                    "refiner_micro_fine": RefinerConfig(name="refiner_micro_fine", crop=32, widths=(8, 16), hidden=32,
-                                                       n_points=64, margin=1.2, starts="fine")}  # the tests' cascade
+                                                       n_points=64, margin=1.2, starts="fine"),  # the tests' cascade
+                   "refiner_micro_native": RefinerConfig(name="refiner_micro_native", crop=32, widths=(8, 16), hidden=32,
+                                                         n_points=64, margin=1.2, starts="fine", native=48)}
 
 
 def named_config(configs: dict, name: str, what: str):

@@ -154,14 +154,31 @@ def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str) -> None:
 def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box):
     """(B, S, S, 7) network input (luma: (B, S, S, 3)): observed crop, render (RGB, mask) at
     T_cam (no gradient: the render is an input, as in DeepIM)."""
-    S = cfg.crop
-    out = render.render(mesh, T_cam, K, S, S, box=box)
-    mask = out.mask[..., None].astype(obs.dtype)
+    rgb, mask = render_crop(mesh, cfg, T_cam, K, box)
+    mask = mask[..., None].astype(obs.dtype)
     if cfg.luma:
-        rend = jnp.concatenate([N.luminance(out.rgb)[..., None], mask], -1)
+        rend = jnp.concatenate([N.luminance(rgb)[..., None], mask], -1)
         return jnp.concatenate([N.luminance(obs)[..., None], jax.lax.stop_gradient(rend)], -1)
-    rend = jax.lax.stop_gradient(jnp.concatenate([out.rgb, mask], -1))
+    rend = jax.lax.stop_gradient(jnp.concatenate([rgb, mask], -1))
     return jnp.concatenate([obs, rend], -1)
+
+
+def render_crop(mesh, cfg: N.RefinerConfig, T_cam: jaxlie.SE3, K, box):
+    """The render at T_cam (B,) in the crop boxes (B, 4): RGB (B, S, S, 3) and mask (B, S, S) in
+    [0, 1]. `cfg.native` > 0: rendered at the image's pixel centres in a window of that side
+    around each box, then cropped as the observed image is (see `RefinerConfig.native`)."""
+    S, Nw = cfg.crop, cfg.native
+    direct = render.render(mesh, T_cam, K, S, S, box=box)
+    if not Nw:
+        return direct.rgb, direct.mask.astype(jnp.float32)
+    corner = jnp.round(0.5 * (box[..., :2] + box[..., 2:])) - Nw // 2  # (B, 2) the window's first pixel centre
+    window = jnp.concatenate([corner - 0.5, corner + Nw - 0.5], -1)  # edges at pixel borders
+    out = render.render(mesh, T_cam, K, Nw, Nw, box=window)
+    img = jnp.concatenate([out.rgb, out.mask[..., None].astype(out.rgb.dtype)], -1)  # (B, Nw, Nw, 4)
+    local = box - jnp.concatenate([corner, corner], -1)  # the box in the window's pixels
+    crops = jax.vmap(lambda im, b: _crop.crop_image(im, b, S, S))(img, local)
+    fits = (jnp.maximum(box[..., 2] - box[..., 0], box[..., 3] - box[..., 1]) <= Nw - 2)[..., None, None]
+    return jnp.where(fits[..., None], crops[..., :3], direct.rgb), jnp.where(fits, crops[..., 3], direct.mask.astype(jnp.float32))
 
 
 def refiner_loss(cfg: N.RefinerConfig, mesh, points, params, b):
