@@ -1,19 +1,16 @@
-"""How well can one image tell the range at all? Our scenario images are rendered without
-anti-aliasing (the hard rasterizer samples each pixel at its centre), so an edge's position is
-known only to the pixel it falls in. For each frame, the robot is rendered at its true bearing and
-heading with the range scaled by (1 + e) over a grid of e, at the image's own pixel centres, and
-compared with the render at the true pose: the face seen at every pixel (the silhouette and every
-edge between faces inside it) and the default-lit colours at 8 bits. The contiguous run of e whose
-renders are identical to the truth's is the range interval that this image cannot tell apart.
-Whatever the method, an estimate from one image cannot do better than that interval's midpoint
-knowing the bearing and heading exactly: its mean |dx| (= |e| x) is printed by range band, end-on views
-(relative heading within 20 deg of head-on or tail-on) apart.
+"""How well do one image's pixels pin the range? Our scenario images are rendered without
+anti-aliasing (the hard rasterizer samples each pixel at its centre), so an edge is seen only as
+the pixel centres it covers. For each frame the robot is rendered at its true bearing and heading
+with the range scaled by (1 + e) over a grid of e, at the image's own pixel centres, and compared
+with the render at the true pose: the silhouette, and the silhouette with the colours (default
+light, 8 bits; a pixel counts as changed beyond `colour_step` levels). The contiguous run of e
+whose renders differ from the truth's in at most `t` pixels is the range interval the image
+cannot tell apart at that tolerance. Knowing the bearing and heading exactly, an estimate from
+that image can do no better than the interval's midpoint: its mean |dx| (= |e| x) and the
+interval's mean half-width are printed by range band, end-on views (relative heading within 20
+deg of head-on or tail-on) apart. Geometry only: the set's rooms, lights and noise do not enter.
 
   python experiments/range_quantization.py --data DIR [DIR ...] --stride 10 [--json OUT]
-
-(Geometry only: the rooms, lights and noise of the set do not enter; lighting in the scenario
-images is per-face constant on our robot, so identical face maps give identical robot pixels
-there, up to specular highlights.)
 """
 
 from __future__ import annotations
