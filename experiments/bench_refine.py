@@ -44,7 +44,8 @@ class Args:
     seed: int = 0
     """seed of the paper's noise for start (a)"""
     starts: tuple[str, ...] = ("noise", "iml")
-    """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates"""
+    """(a) noise: gt + N(0, 0.15 m) x, y and N(0, 20 deg) psi; (b) iml: the IML's estimates;
+    truth: the ground truth itself (where a refiner's reading moves a perfect estimate)"""
     crop: int = 64
     debias_stages: int = 2
     coarse: bool = True
@@ -202,7 +203,7 @@ def main(a: Args) -> list[dict]:
     rng = np.random.default_rng(a.seed)
     noise = np.stack([rng.normal(0, 0.15, len(gt)), rng.normal(0, 0.15, len(gt)),
                       rng.normal(0, np.deg2rad(20), len(gt))], 1).astype(np.float32)
-    starts = {"noise": gt + noise}
+    starts = {"noise": gt + noise, "truth": gt.copy()}
     if inits_iml:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))

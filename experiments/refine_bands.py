@@ -2,7 +2,10 @@
 true range, mean |dx| (cm), mean |relative range error| (%) and mean |dpsi| (deg) after one learned
 stage (default: the last iteration row; the convergence check is not applied).
 
-  python experiments/refine_bands.py OUT.json [OUT.json ...] [--start noise] [--stage -1]
+  python experiments/refine_bands.py OUT.json [OUT.json ...] [--start noise] [--stage -1] [--end-on]
+
+--end-on splits each band into end-on views (relative heading within 20 deg of head-on or
+tail-on) and the others, and adds the mean signed range error (%).
 
 Several JSONs (e.g. validation seeds 7 and 8) are pooled.
 """
@@ -25,6 +28,7 @@ def main() -> None:
     ap.add_argument("json", nargs="+")
     ap.add_argument("--start", default="noise", help="which start's frames: noise or iml")
     ap.add_argument("--stage", type=int, default=-1, help="row of learned_iterates (0: the start; -1: the last iteration)")
+    ap.add_argument("--end-on", action="store_true", help="end-on views apart, with the signed range error")
     a = ap.parse_args()
     gt, est = [], []
     for path in a.json:
@@ -35,13 +39,17 @@ def main() -> None:
     gt, est = np.concatenate(gt), np.concatenate(est)
     d = np.asarray(metrics.abs_errors(jnp.asarray(est, jnp.float32), jnp.asarray(gt, jnp.float32)))
     r = np.hypot(gt[:, 0], gt[:, 1])
-    rr = np.abs(np.hypot(est[:, 0], est[:, 1]) / r - 1)
+    signed = np.hypot(est[:, 0], est[:, 1]) / r - 1
+    rel = np.abs(np.rad2deg((gt[:, 2] - np.arctan2(gt[:, 1], gt[:, 0]) + np.pi) % (2 * np.pi) - np.pi))
+    end_on = np.minimum(rel, 180 - rel) < 20
+    views = (("end-on ", end_on), ("other ", ~end_on)) if a.end_on else (("", np.ones_like(end_on)),)
     for lo, hi in zip(BANDS[:-1], BANDS[1:]):
-        k = (r >= lo) & (r < hi)
-        if k.any():
-            print(f"{lo:.1f}-{hi:.1f} m ({k.sum()}): |dx| {100 * d[k, 0].mean():.2f} cm, |range| {100 * rr[k].mean():.2f} %, "
-                  f"|dpsi| {np.rad2deg(d[k, 2]).mean():.2f} deg")
-
+        for view, v in views:
+            k = v & (r >= lo) & (r < hi)
+            if k.any():
+                bias = f", range bias {100 * signed[k].mean():+.2f} %" if a.end_on else ""
+                print(f"{view}{lo:.1f}-{hi:.1f} m ({k.sum()}): |dx| {100 * d[k, 0].mean():.2f} cm, |range| {100 * np.abs(signed[k]).mean():.2f} %, "
+                      f"|dpsi| {np.rad2deg(d[k, 2]).mean():.2f} deg{bias}")
 
 if __name__ == "__main__":
     main()
