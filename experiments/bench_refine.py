@@ -71,6 +71,8 @@ class Args:
     oracle_from_learned: bool = False
     """with --refiner: also align to the ground-truth masks from the learned iterations' last pose
     (what a perfect mask would add after them)"""
+    mirror: str = RefineConfig.mirror
+    """`RefineConfig.mirror`: none, fine or all (the learned iterations also read mirrored crops)"""
     fine_views: int = RefineConfig.fine_views
     """with --fine-refiner: `RefineConfig.fine_views` (starts averaged)"""
     max_final_step: float | None = RefineConfig.max_final_step
@@ -106,7 +108,7 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     post iterations; with a fine refiner: then after each of its iterations) and, with
     --align-predicted, after the alignment to the predicted mask."""
     rc = RefineConfig(align=None, n_iter=a.n_iter, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
-                      fine_views=a.fine_views, max_final_step=a.max_final_step, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
+                      fine_views=a.fine_views, max_final_step=a.max_final_step, mirror=a.mirror, fine_spread=tuple(a.fine_spread_scale * x for x in RefineConfig.fine_spread))
     f_it = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, scorer=sc, fine=fine))
     f_all = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, RefineConfig(align=cfg)))
     its, est, ms_it, ms_all, flip_prob, conv = [], [], [], [], [], []

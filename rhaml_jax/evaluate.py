@@ -73,6 +73,9 @@ class Args:
     default: the shipped `refine.DEFAULT_FINE_REFINER` when --refiner is not given, else none)"""
     fine_iter: int | None = None
     """the ir module's iterations of the fine refiner (`RefineConfig.fine_iter`; None: its default)"""
+    refine_mirror: Literal["none", "fine", "all"] | None = None
+    """the ir module's test-time mirroring (`RefineConfig.mirror`: which learned iterations also read
+    their crops mirrored left-right; None: its default for a symmetric robot)"""
     max_final_step: float | None = 0.01
     """the ir module's convergence check (`RefineConfig.max_final_step`): where the refiner's last
     coarse iteration moves the range by more than this fraction, IML's estimate stands; None: off"""
@@ -159,7 +162,8 @@ def _load(args: Args, modules):
         from rhaml_jax import refine
 
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
-                                                    segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner)
+                                                    segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner,
+                                                    mirror=args.refine_mirror)
         refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step,
                                       fine_iter=refiner.fine_iter if args.fine_iter is None else args.fine_iter)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")

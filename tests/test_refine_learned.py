@@ -249,6 +249,7 @@ def test_a_native_render_is_the_full_image_render_cropped_as_the_observed_image_
         err, err_direct = np.abs(np.asarray(mask[0]) - ref[..., 3]).mean(), np.abs(np.asarray(d_mask[0]) - ref[..., 3]).mean()
         if kind == "magnified":
             np.testing.assert_allclose(np.asarray(mask[0]), ref[..., 3], atol=1e-4)
+            np.testing.assert_array_equal(np.asarray(render_crop(mesh, cfg, T1, K, box)[1]), np.asarray(mask))  # one box (4,), as refine() passes it
             assert np.mean(np.abs(np.asarray(rgb[0]) - ref[..., :3]) < 1e-3) > 0.99  # ties between coplanar faces aside
             assert err_direct > 1e-2
         elif kind == "shrunk":  # the area filter's grid is the window's, not the whole image's

@@ -84,6 +84,11 @@ class RefineConfig:
     fine_spread: tuple[float, float, float] = (0.01, float(np.deg2rad(0.2)), float(np.deg2rad(2.0)))
     """the views' offsets: log range, bearing (rad), heading (rad); the fine refiner's training
     starts' smaller spreads (`RefinerConfig.starts` "fine")"""
+    mirror: str = "none"
+    """test-time mirroring of the learned iterations: "none", "fine" (the fine refiner's) or "all":
+    each such iteration also reads its input (observed crop and render) mirrored left-right and
+    averages the two updates (`mirror_update`), as `IMLConfig.zoom_mirror` does for the zoom
+    stage; for left-right symmetric robots (`iml.check_mirror_symmetric`)"""
     max_final_step: float | None = 0.01
     """the cascade has converged when its last coarse learned iteration moved the range by at most
     this fraction (|log r_n / r_(n-1)|; needs n_iter >= 2; None: no check). An unconverged cascade
@@ -108,6 +113,8 @@ class RefineConfig:
             raise RhamlError(f"RefineConfig.fine_iter must be >= 0, got {self.fine_iter}")
         if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
             raise RhamlError(f"RefineConfig.fine_views must be in 1..{len(_VIEW_SIGNS)}, got {self.fine_views}")
+        if self.mirror not in ("none", "fine", "all"):
+            raise RhamlError(f"RefineConfig.mirror must be 'none', 'fine' or 'all', got {self.mirror!r}")
         if len(self.fine_spread) != 3 or min(self.fine_spread) < 0:
             raise RhamlError(f"RefineConfig.fine_spread must be 3 spreads >= 0 (log range, bearing, heading), got {self.fine_spread}")
 
@@ -175,10 +182,10 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         n_iter = rc.n_iter if cfg.n_iter is None else cfg.n_iter
         corners = _corners(mesh)
 
-        def learned(xyp, n, net=refiner):
+        def learned(xyp, n, net=refiner, mirror=cfg.mirror == "all"):
             """n iterations of `net` from the planar pose xyp: (planar pose, roll and pitch); each
             iterate is kept as a row of `iterates`."""
-            xyp, rp, its = _iterate(net, mesh, corners, image, K, h, xyp, n)
+            xyp, rp, its = _iterate(net, mesh, corners, image, K, h, xyp, n, mirror)
             iterates.extend(its)
             return xyp, rp
 
@@ -196,7 +203,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
                                                    cfg.fine_spread)
                 iterates.extend(its)
             else:
-                xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine)
+                xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine, cfg.mirror != "none")
         if acfg is not None and segmenter is None:  # the mask head at the final pose, in the alignment's crop
             box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=acfg.margin))
             obs = _crop.crop_image(image, box, rc.crop, rc.crop)
@@ -235,9 +242,17 @@ def _final_step(a, b):
     return jnp.abs(jnp.log(rb / ra))
 
 
-def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int):
+def mirror_update(update):
+    """(..., 6) the update read from left-right mirrored crops, mapped back: the image is mirrored
+    about a vertical line, i.e. the camera frame's x axis reflected (M = diag(-1, 1, 1)); v_x
+    changes sign, and the rotation vector, an axial vector, becomes det(M) M r = (r_x, -r_y, -r_z)."""
+    return update * jnp.asarray([-1.0, 1.0, 1.0, 1.0, -1.0, -1.0], update.dtype)
+
+
+def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int, mirror: bool = False):
     """n learned iterations of `net` from the planar pose xyp (3,), re-rendering between them:
-    (planar pose (3,), roll and pitch (2,), the n iterates as a list of (3,))."""
+    (planar pose (3,), roll and pitch (2,), the n iterates as a list of (3,)). `mirror`: each
+    update is the average of the input's and its mirror image's (`RefineConfig.mirror`)."""
     from rhaml_jax.refine import net as N
     from rhaml_jax.refine.train import render_input
 
@@ -249,8 +264,13 @@ def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int):
         T1 = jaxlie.SE3(T.wxyz_xyz[None])
         bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=nc.margin))
         obs = _crop.crop_image(image, bx, nc.crop, nc.crop)
-        out = N.apply(nc, net.params, render_input(mesh, nc, obs[None], T1, K, bx))  # (1, S, S, 7 or 3) input
-        T = jaxlie.SE3(N.apply_update(T1, out.update, K, bx).wxyz_xyz[0])
+        x = render_input(mesh, nc, obs[None], T1, K, bx)  # (1, S, S, 7 or 3)
+        update = N.apply(nc, net.params, x).update
+        if mirror:  # the mirrored scene's render, lit from the same side as every render it trained on
+            lx, ly, lz = render.DEFAULT_LIGHT
+            xm = render_input(mesh, nc, obs[None], T1, K, bx, light_dir=(-lx, ly, lz))[:, :, ::-1]
+            update = 0.5 * (update + mirror_update(N.apply(nc, net.params, xm).update))
+        T = jaxlie.SE3(N.apply_update(T1, update, K, bx).wxyz_xyz[0])
         its.append(frames.xypsi_from_se3(T_back @ T))
     return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2], its
 
@@ -356,7 +376,8 @@ class StageParams(NamedTuple):
 
 
 def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
-               segmenter: str | Path | None = None, scorer: str | Path | None = None, fine: str | Path | None = None):
+               segmenter: str | Path | None = None, scorer: str | Path | None = None, fine: str | Path | None = None,
+               mirror: str | None = None):
     """The pipeline's IR stage: (RefineConfig, StageParams) for `pipeline.PipelineModel.refiner`
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
@@ -364,7 +385,9 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINER` (`fine` "none": without it; given
     another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
-    with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade)."""
+    with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade). `mirror`:
+    `RefineConfig.mirror` (None: its default for a left-right symmetric robot, "none" for another;
+    mirroring named for an asymmetric robot is refused)."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
@@ -377,4 +400,22 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     if fine is None and ckpt_dir is None:
         fine = shipped_checkpoint(DEFAULT_FINE_REFINER)
     fn = None if fine is None or str(fine) == "none" else load_refiner(fine, check)
-    return RefineConfig(), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
+    return RefineConfig(mirror=_mirror_setting(robot, mirror)), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
+
+
+def _mirror_setting(robot, mirror: str | None) -> str:
+    """`RefineConfig.mirror` for this robot: `mirror`, or the default where the robot is left-right
+    symmetric ("none" where not); a mirroring named for an asymmetric robot raises RhamlError."""
+    from rhaml_jax.errors import RhamlError
+    from rhaml_jax.iml import check_mirror_symmetric
+
+    if mirror is None:
+        try:
+            check_mirror_symmetric(robot, robot.name)
+        except RhamlError:
+            return "none"
+        return RefineConfig.mirror
+    RefineConfig(mirror=mirror)  # refuses an unknown setting
+    if mirror != "none":
+        check_mirror_symmetric(robot, robot.name, "--refine-mirror")
+    return mirror

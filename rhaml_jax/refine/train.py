@@ -151,10 +151,10 @@ def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str) -> None:
                      "T_init": (size, 7), "T_gt": (size, 7)}, "RefinerBatch", where)
 
 
-def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box):
+def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box, light_dir=render.DEFAULT_LIGHT):
     """(B, S, S, 7) network input (luma: (B, S, S, 3)): observed crop, render (RGB, mask) at
     T_cam (no gradient: the render is an input, as in DeepIM)."""
-    rgb, mask = render_crop(mesh, cfg, T_cam, K, box)
+    rgb, mask = render_crop(mesh, cfg, T_cam, K, box, light_dir)
     mask = mask[..., None].astype(obs.dtype)
     if cfg.luma:
         rend = jnp.concatenate([N.luminance(rgb)[..., None], mask], -1)
@@ -163,17 +163,18 @@ def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box):
     return jnp.concatenate([obs, rend], -1)
 
 
-def render_crop(mesh, cfg: N.RefinerConfig, T_cam: jaxlie.SE3, K, box):
+def render_crop(mesh, cfg: N.RefinerConfig, T_cam: jaxlie.SE3, K, box, light_dir=render.DEFAULT_LIGHT):
     """The render at T_cam (B,) in the crop boxes (B, 4): RGB (B, S, S, 3) and mask (B, S, S) in
     [0, 1]. `cfg.native` > 0: rendered at the image's pixel centres in a window of that side
     around each box, then cropped as the observed image is (see `RefinerConfig.native`)."""
     S, Nw = cfg.crop, cfg.native
-    direct = render.render(mesh, T_cam, K, S, S, box=box)
+    direct = render.render(mesh, T_cam, K, S, S, box=box, light_dir=light_dir)
     if not Nw:
         return direct.rgb, direct.mask.astype(jnp.float32)
+    box = jnp.broadcast_to(box, T_cam.wxyz_xyz.shape[:-1] + (4,))  # one box (4,) for a batch of poses too
     corner = jnp.round(0.5 * (box[..., :2] + box[..., 2:])) - Nw // 2  # (B, 2) the window's first pixel centre
     window = jnp.concatenate([corner - 0.5, corner + Nw - 0.5], -1)  # edges at pixel borders
-    out = render.render(mesh, T_cam, K, Nw, Nw, box=window)
+    out = render.render(mesh, T_cam, K, Nw, Nw, box=window, light_dir=light_dir)
     img = jnp.concatenate([out.rgb, out.mask[..., None].astype(out.rgb.dtype)], -1)  # (B, Nw, Nw, 4)
     local = box - jnp.concatenate([corner, corner], -1)  # the box in the window's pixels
     crops = jax.vmap(lambda im, b: _crop.crop_image(im, b, S, S))(img, local)
