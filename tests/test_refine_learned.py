@@ -324,6 +324,68 @@ def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves) and sum(float(jnp.abs(x).sum()) for x in leaves) > 0
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=12, max_size=12))
+def test_a_mirrored_update_is_the_update_of_the_mirrored_scene(v):
+    """`refine.mirror_update`: the update between two poses seen in a left-right mirrored image
+    (the camera frame's x axis reflected: T -> M T M, M = diag(-1, 1, 1)), mapped back, is the update
+    between the poses themselves; mapping twice is the identity."""
+    from rhaml_jax.refine import mirror_update
+
+    v = np.asarray(v, np.float32)
+    K = jnp.asarray(DEFAULT_CAMERA.K, jnp.float32)
+    box = jnp.array([250.0, 200.0, 330.0, 280.0])
+    M = jnp.diag(jnp.array([-1.0, 1.0, 1.0, 1.0]))
+
+    def pose(a):
+        R = jaxlie.SO3.exp(jnp.asarray(a[:3]))
+        return jaxlie.SE3.from_rotation_and_translation(R, jnp.asarray([a[3], 0.5 * a[4], 4.0 + a[5]]))
+
+    src, tgt = pose(v[:6]), pose(v[6:])
+    mirrored = [jaxlie.SE3.from_matrix(M @ T.as_matrix() @ M) for T in (src, tgt)]
+    u = N.target_update(src, tgt, K, box)
+    np.testing.assert_allclose(np.asarray(mirror_update(N.target_update(*mirrored, K, box))), np.asarray(u), atol=2e-4)
+    np.testing.assert_array_equal(np.asarray(mirror_update(mirror_update(u))), np.asarray(u))
+
+
+def test_mirroring_runs_only_the_iterations_it_names(run, bop_set, tmp_path):
+    """`RefineConfig.mirror`: "fine" changes only the fine refiner's rows, "all" the coarse ones
+    too; results finite. `load_stage` keeps it off for a robot that is not left-right symmetric and
+    refuses it named for one; an unknown setting is refused."""
+    import shutil
+
+    from rhaml_jax.data._bop import write_dataset_header
+    from rhaml_jax.refine import load_stage
+    from rhaml_jax.robots import load_robot
+
+    out, _, _ = run
+    model = load_bop_model(bop_set)
+    mesh = render.as_mesh(model)
+    coarse = load_refiner(out, model)
+    fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"))
+    fine = dataclasses.replace(fine, params=jax.tree.map(lambda a: a + 0.05, fine.params))  # a non-zero head
+    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    h = float(np.linalg.inv(f.T_w2c)[2, 3])
+    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    its = {m: np.asarray(refine(coarse, mesh, img, f.K, init, RefineConfig(camera_height_m=h, align=None, n_iter=2, fine_iter=2,
+                                                                           mirror=m), fine=fine).iterates)
+           for m in ("none", "fine", "all")}
+    assert all(np.all(np.isfinite(x)) for x in its.values())
+    np.testing.assert_allclose(its["fine"][:3], its["none"][:3], atol=1e-6)
+    assert np.abs(its["fine"][3:] - its["none"][3:]).max() > 1e-5 and np.abs(its["all"][1:3] - its["none"][1:3]).max() > 1e-5
+    with pytest.raises(RhamlError, match="RefineConfig.mirror"):
+        RefineConfig(mirror="both")
+    assert load_stage(out, bop_set)[0].mirror == RefineConfig.mirror
+    lopsided = tmp_path / "lopsided"
+    shutil.copytree(bop_set, lopsided)
+    m = load_robot("pioneer3dx")
+    write_dataset_header(lopsided, dataclasses.replace(m, vertices=m.vertices + np.float32([0, 0.05, 0])), DEFAULT_CAMERA)
+    assert load_stage(out, lopsided, check_robot=False)[0].mirror == "none"
+    with pytest.raises(RhamlError, match="--refine-mirror: the robot model .* is not left-right symmetric"):
+        load_stage(out, lopsided, check_robot=False, mirror="fine")
+
+
 def test_fine_views_average_the_fine_refiner_from_starts_around_the_pose(run, bop_set):
     """`RefineConfig.fine_views`: the fine refiner runs once from each `view_starts` pose and its
     answers are averaged (the heading as a unit vector); one view is the plain cascade."""

@@ -37,7 +37,7 @@ from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_tar
 
 __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "view_starts", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "view_starts", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 # The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
