@@ -1,9 +1,9 @@
 """Milliseconds per frame of the IR stage's learned iterations for several (coarse, fine) iteration
-counts, measured side by side in one process: the shipped refiner cascade on a batch of frames of a
+counts (and `RefineConfig.mirror` settings), measured side by side in one process: the shipped refiner cascade on a batch of frames of a
 BOP set (jax.vmap of `refine.refine`, no alignment), each setting's median over `--repeats` calls,
 the settings' calls interleaved so that load on the machine falls on all alike.
 
-  python experiments/time_refine_iterations.py --data DATA/circle --batch 8 --repeats 15 --settings 4,1 4,2
+  python experiments/time_refine_iterations.py --data DATA/circle --batch 8 --repeats 15 --settings 4,1 4,2 4,2,fine
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=15)
-    ap.add_argument("--settings", nargs="+", default=["4,1", "4,2"], help="n_iter,fine_iter pairs")
+    ap.add_argument("--settings", nargs="+", default=["4,1", "4,2"], help="n_iter,fine_iter[,mirror]")
     a = ap.parse_args()
     frames = [f for f in data.read_bop(a.data) if f.observed][: a.batch]
     if len(frames) < a.batch:
@@ -36,8 +36,8 @@ def main() -> None:
     init = jnp.asarray(np.stack([f.xypsi for f in frames]), jnp.float32) + jnp.array([0.05, 0.03, 0.1])
     fns = {}
     for s in a.settings:
-        n, f = (int(v) for v in s.split(","))
-        rc = refine.RefineConfig(align=None, n_iter=n, fine_iter=f)
+        n, f, *m = s.split(",")
+        rc = refine.RefineConfig(align=None, n_iter=int(n), fine_iter=int(f), mirror=m[0] if m else "none")
         fns[s] = jax.jit(jax.vmap(lambda im, K, i, rc=rc: refine.refine(st.refiner, st.mesh, im, K, i, rc, fine=st.fine).xypsi))
         jax.block_until_ready(fns[s](images, Ks, init))  # compile
     ts = {s: [] for s in fns}
@@ -49,7 +49,7 @@ def main() -> None:
     base = statistics.median(ts[a.settings[0]])
     for s in a.settings:
         m = statistics.median(ts[s])
-        print(f"n_iter,fine_iter {s}: {1e3 * m / a.batch:.1f} ms per frame at batch {a.batch} ({m / base:.2f}x the first)")
+        print(f"n_iter,fine_iter[,mirror] {s}: {1e3 * m / a.batch:.1f} ms per frame at batch {a.batch} ({m / base:.2f}x the first)")
 
 
 if __name__ == "__main__":
