@@ -26,11 +26,14 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--settings", nargs="+", default=["4,1", "4,2"], help="n_iter,fine_iter[,mirror]")
+    ap.add_argument("--fine-refiner", type=Path, action="append", default=[],
+                    help="also time these fine refiners in every setting (default: the shipped one alone)")
     a = ap.parse_args()
     frames = [f for f in data.read_bop(a.data) if f.observed][: a.batch]
     if len(frames) < a.batch:
         raise SystemExit(f"{a.data}: {len(frames)} frames with the robot in view, --batch {a.batch} asked")
     _, st = refine.load_stage(None, a.data)  # the shipped cascade; each setting brings its own RefineConfig
+    fines = {"": st.fine, **{f" {p}": refine.load_refiner(p, data.load_bop_model(a.data)) for p in a.fine_refiner}}
     images = jnp.asarray(np.stack([data.load_rgb(f.rgb) for f in frames]), jnp.float32) / 255
     Ks = jnp.asarray(np.stack([f.K for f in frames]), jnp.float32)
     init = jnp.asarray(np.stack([f.xypsi for f in frames]), jnp.float32) + jnp.array([0.05, 0.03, 0.1])
@@ -38,16 +41,17 @@ def main() -> None:
     for s in a.settings:
         n, f, *m = s.split(",")
         rc = refine.RefineConfig(align=None, n_iter=int(n), fine_iter=int(f), mirror=m[0] if m else "none")
-        fns[s] = jax.jit(jax.vmap(lambda im, K, i, rc=rc: refine.refine(st.refiner, st.mesh, im, K, i, rc, fine=st.fine).xypsi))
-        jax.block_until_ready(fns[s](images, Ks, init))  # compile
+        for name, fine in fines.items():
+            fns[s + name] = jax.jit(jax.vmap(lambda im, K, i, rc=rc, fine=fine: refine.refine(st.refiner, st.mesh, im, K, i, rc, fine=fine).xypsi))
+            jax.block_until_ready(fns[s + name](images, Ks, init))  # compile
     ts = {s: [] for s in fns}
     for _ in range(a.repeats):
         for s, fn in fns.items():
             t = time.perf_counter()
             jax.block_until_ready(fn(images, Ks, init))
             ts[s].append(time.perf_counter() - t)
-    base = statistics.median(ts[a.settings[0]])
-    for s in a.settings:
+    base = statistics.median(next(iter(ts.values())))
+    for s in ts:
         m = statistics.median(ts[s])
         print(f"n_iter,fine_iter[,mirror] {s}: {1e3 * m / a.batch:.1f} ms per frame at batch {a.batch} ({m / base:.2f}x the first)")
 

@@ -75,7 +75,7 @@ class Args:
     """the ir module's iterations of the fine refiner (`RefineConfig.fine_iter`; None: its default)"""
     refine_mirror: Literal["none", "fine", "all"] | None = None
     """the ir module's test-time mirroring (`RefineConfig.mirror`: which learned iterations also read
-    their crops mirrored left-right; None: its default for a symmetric robot)"""
+    their crops mirrored left-right; None: `refine.DEFAULT_MIRROR` for a symmetric robot)"""
     max_final_step: float | None = 0.01
     """the ir module's convergence check (`RefineConfig.max_final_step`): where the refiner's last
     coarse iteration moves the range by more than this fraction, IML's estimate stands; None: off"""

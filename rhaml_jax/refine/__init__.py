@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "view_starts", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -88,7 +88,8 @@ class RefineConfig:
     """test-time mirroring of the learned iterations: "none", "fine" (the fine refiner's) or "all":
     each such iteration also reads its input (observed crop and render) mirrored left-right and
     averages the two updates (`mirror_update`), as `IMLConfig.zoom_mirror` does for the zoom
-    stage; for left-right symmetric robots (`iml.check_mirror_symmetric`)"""
+    stage. Only for left-right symmetric robots (`iml.check_mirror_symmetric`), so not by default
+    here; `load_stage`, which knows the robot, sets `DEFAULT_MIRROR` for a symmetric one"""
     max_final_step: float | None = 0.01
     """the cascade has converged when its last coarse learned iteration moved the range by at most
     this fraction (|log r_n / r_(n-1)|; needs n_iter >= 2; None: no check). An unconverged cascade
@@ -358,6 +359,13 @@ fine refiner on twice the images"; the two it was trained from ship beside it: `
 "The fine refiner trained longer", and session 29's `refiner_fine_cpu`, "A fine refiner")"""
 
 
+DEFAULT_MIRROR = "fine"
+"""`RefineConfig.mirror` that `load_stage` (so `evaluate`, the pipeline and the demo) sets for a
+left-right symmetric robot: the fine refiner's iterations also read their crops mirrored. On
+validation it takes 9 % off |dx| and 8 % off the ATE from the paper's noise, and the IML+IR
+position 2 % over the validation looks; mirroring the coarse iterations too gains less
+(BENCHMARKS.md, "The fine refiner reads mirrored crops too")"""
+
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -386,8 +394,8 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade). `mirror`:
-    `RefineConfig.mirror` (None: its default for a left-right symmetric robot, "none" for another;
-    mirroring named for an asymmetric robot is refused)."""
+    `RefineConfig.mirror` (None: `DEFAULT_MIRROR` for a left-right symmetric robot, "none" for
+    another; mirroring named for an asymmetric robot is refused)."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
     from rhaml_jax.data import bop_model_path, load_bop_model
     from rhaml_jax.robots import load_robot
@@ -404,7 +412,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
 
 
 def _mirror_setting(robot, mirror: str | None) -> str:
-    """`RefineConfig.mirror` for this robot: `mirror`, or the default where the robot is left-right
+    """`RefineConfig.mirror` for this robot: `mirror`, or `DEFAULT_MIRROR` where the robot is left-right
     symmetric ("none" where not); a mirroring named for an asymmetric robot raises RhamlError."""
     from rhaml_jax.errors import RhamlError
     from rhaml_jax.iml import check_mirror_symmetric
@@ -414,7 +422,7 @@ def _mirror_setting(robot, mirror: str | None) -> str:
             check_mirror_symmetric(robot, robot.name)
         except RhamlError:
             return "none"
-        return RefineConfig.mirror
+        return DEFAULT_MIRROR
     RefineConfig(mirror=mirror)  # refuses an unknown setting
     if mirror != "none":
         check_mirror_symmetric(robot, robot.name, "--refine-mirror")
