@@ -19,4 +19,4 @@ done; done; done
 # from the IML, every 5th frame the IML detected). Session 39's runs of retrain_fine_plain.sh are the
 # one-iteration column.
 RUNS="$OUT"; . "$(dirname "$0")/_test_sets.sh"
-test_sets fine_iter2 rhaml_jax/checkpoints/refiner_fine_long_cpu 2
+test_sets fine_iter2 rhaml_jax/checkpoints/refiner_fine_long_cpu 2 none

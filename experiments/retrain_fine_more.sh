@@ -38,7 +38,7 @@ done
 # window, then issue 15's table (bench_refine.py from the paper's noise and from the IML, every 5th frame the
 # IML detected).
 . "$(dirname "$0")/_test_sets.sh"
-test_sets final rhaml_jax/checkpoints/refiner_fine_more_cpu 2 --range-window-max-scale None  # session 40's pose graph: the window always
+test_sets final rhaml_jax/checkpoints/refiner_fine_more_cpu 2 none --range-window-max-scale None  # session 40's pose graph: the window always
 sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_final_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_final_${set}_sine.json" "$DATA/$set/sine"); done
 [ -f "$RUNS/pipeline_test_final.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_final.json"
 [ -f "$RUNS/pipeline_test_final_nowindow.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --metric range_window null --out "$RUNS/pipeline_test_final_nowindow.json"

@@ -45,5 +45,5 @@ bench fine_mix "$RUNS/export/fine_mix"
 # the paper's noise and from the IML, every 5th frame the IML detected).
 . "$(dirname "$0")/_test_sets.sh"
 for fine in refiner_fine_cpu refiner_fine_long_cpu; do  # one fine iteration, session 39's default
-  test_sets "$fine" "rhaml_jax/checkpoints/$fine" 1
+  test_sets "$fine" "rhaml_jax/checkpoints/$fine" 1 none
 done
