@@ -364,7 +364,7 @@ DEFAULT_MIRROR = "fine"
 left-right symmetric robot: the fine refiner's iterations also read their crops mirrored. On
 validation it takes 9 % off |dx| and 8 % off the ATE from the paper's noise, and the IML+IR
 position 2 % over the validation looks; mirroring the coarse iterations too gains less
-(BENCHMARKS.md, "The fine refiner reads mirrored crops too")"""
+(BENCHMARKS.md, "What one image tells about the range, and mirrored crops")"""
 
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
