@@ -299,19 +299,25 @@ def test_fine_starts_are_a_coarse_refiners_residuals():
         dataclasses.replace(cfg, starts="tiny")
 
 
-def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
-    """The cascade: `fine_iter` more iterations (rows of `iterates`) of the fine refiner after the
-    coarse ones; the coarse rows are the coarse refiner's alone; gradients reach the fine refiner."""
+def _micro_cascade(run, bop_set):
+    """The tiny run as a coarse refiner, a fine one made from it (a non-zero head), and a training
+    frame to refine: (run dir, coarse, fine, mesh, frame, image, camera height, initial pose)."""
     out, _, _ = run
     model = load_bop_model(bop_set)
-    mesh = render.as_mesh(model)
     coarse = load_refiner(out, model)
     fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"))
-    fine = dataclasses.replace(fine, params=jax.tree.map(lambda a: a + 0.05, fine.params))  # a non-zero head
+    fine = dataclasses.replace(fine, params=jax.tree.map(lambda a: a + 0.05, fine.params))
     f = [f for f in read_bop(bop_set, "train") if f.observed][0]
     img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
     h = float(np.linalg.inv(f.T_w2c)[2, 3])
     init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    return out, coarse, fine, render.as_mesh(model), f, img, h, init
+
+
+def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
+    """The cascade: `fine_iter` more iterations (rows of `iterates`) of the fine refiner after the
+    coarse ones; the coarse rows are the coarse refiner's alone; gradients reach the fine refiner."""
+    out, coarse, fine, mesh, f, img, h, init = _micro_cascade(run, bop_set)
     cfg = RefineConfig(camera_height_m=h, align=None, n_iter=2, fine_iter=3)
     alone = refine(coarse, mesh, img, f.K, init, cfg)
     both = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
@@ -359,16 +365,7 @@ def test_mirroring_runs_only_the_iterations_it_names(run, bop_set, tmp_path):
     from rhaml_jax.refine import load_stage
     from rhaml_jax.robots import load_robot
 
-    out, _, _ = run
-    model = load_bop_model(bop_set)
-    mesh = render.as_mesh(model)
-    coarse = load_refiner(out, model)
-    fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"))
-    fine = dataclasses.replace(fine, params=jax.tree.map(lambda a: a + 0.05, fine.params))  # a non-zero head
-    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
-    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
-    h = float(np.linalg.inv(f.T_w2c)[2, 3])
-    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    out, coarse, fine, mesh, f, img, h, init = _micro_cascade(run, bop_set)
     its = {m: np.asarray(refine(coarse, mesh, img, f.K, init, RefineConfig(camera_height_m=h, align=None, n_iter=2, fine_iter=2,
                                                                            mirror=m), fine=fine).iterates)
            for m in ("none", "fine", "all")}
