@@ -201,7 +201,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         if fine is not None and cfg.fine_iter:
             if cfg.fine_views > 1:
                 xyp, roll_pitch, its = _multi_view(fine, mesh, corners, image, K, h, xyp, cfg.fine_iter, cfg.fine_views,
-                                                   cfg.fine_spread)
+                                                   cfg.fine_spread, cfg.mirror != "none")
                 iterates.extend(its)
             else:
                 xyp, roll_pitch = learned(xyp, cfg.fine_iter, fine, cfg.mirror != "none")
@@ -300,10 +300,10 @@ def _circular_mean(p):
     return jnp.concatenate([p[:, :2].mean(0), jnp.arctan2(jnp.sin(p[:, 2]).mean(0), jnp.cos(p[:, 2]).mean(0))[None]])
 
 
-def _multi_view(net: Refiner, mesh, corners, image, K, h, xyp, n: int, views: int, spread):
+def _multi_view(net: Refiner, mesh, corners, image, K, h, xyp, n: int, views: int, spread, mirror: bool = False):
     """`_iterate` from each of `view_starts` at once, averaged (test-time augmentation: each start
     crops and renders the robot a little differently, so the network's per-crop errors average out)."""
-    run = jax.vmap(lambda s: _iterate(net, mesh, corners, image, K, h, s, n))
+    run = jax.vmap(lambda s: _iterate(net, mesh, corners, image, K, h, s, n, mirror))
     p, rp, its = run(view_starts(xyp, views, spread))  # (V, 3), (V, 2), n x (V, 3)
     return _circular_mean(p), rp.mean(0), [_circular_mean(i) for i in its]
 
@@ -365,6 +365,7 @@ left-right symmetric robot: the fine refiner's iterations also read their crops 
 validation it takes 9 % off |dx| and 8 % off the ATE from the paper's noise, and the IML+IR
 position 2 % over the validation looks; mirroring the coarse iterations too gains less
 (BENCHMARKS.md, "What one image tells about the range, and mirrored crops")"""
+
 
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
