@@ -2,10 +2,11 @@
 true range, mean |dx| (cm), mean |relative range error| (%) and mean |dpsi| (deg) after one learned
 stage (default: the last iteration row; the convergence check is not applied).
 
-  python experiments/refine_bands.py OUT.json [OUT.json ...] [--start noise] [--stage -1] [--end-on]
+  python experiments/refine_bands.py OUT.json [OUT.json ...] [--start noise] [--stage -1] [--end-on] [--worst N]
 
 --end-on splits each band into end-on views (relative heading within 20 deg of head-on or
-tail-on) and the others, and adds the mean signed range error (%).
+tail-on) and the others, and adds the mean signed range error (%). --worst N lists the N frames
+with the largest |dx| (their place in the pooled frames, range, relative heading, signed range error).
 
 Several JSONs (e.g. validation seeds 7 and 8) are pooled.
 """
@@ -29,6 +30,7 @@ def main() -> None:
     ap.add_argument("--start", default="noise", help="which start's frames: noise or iml")
     ap.add_argument("--stage", type=int, default=-1, help="row of learned_iterates (0: the start; -1: the last iteration)")
     ap.add_argument("--end-on", action="store_true", help="end-on views apart, with the signed range error")
+    ap.add_argument("--worst", type=int, default=0, help="list this many frames of the largest |dx|")
     a = ap.parse_args()
     gt, est = [], []
     for path in a.json:
@@ -50,6 +52,10 @@ def main() -> None:
                 bias = f", range bias {100 * signed[k].mean():+.2f} %" if a.end_on else ""
                 print(f"{view}{lo:.1f}-{hi:.1f} m ({k.sum()}): |dx| {100 * d[k, 0].mean():.2f} cm, |range| {100 * np.abs(signed[k]).mean():.2f} %, "
                       f"|dpsi| {np.rad2deg(d[k, 2]).mean():.2f} deg{bias}")
+    signed_rel = np.rad2deg((gt[:, 2] - np.arctan2(gt[:, 1], gt[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
+    for i in np.argsort(-d[:, 0])[: a.worst]:
+        print(f"frame {i}: range {r[i]:.2f} m, relative heading {signed_rel[i]:+.0f} deg, |dx| {100 * d[i, 0]:.2f} cm, "
+              f"range {100 * signed[i]:+.2f} %")
 
 if __name__ == "__main__":
     main()
