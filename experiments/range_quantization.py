@@ -25,11 +25,10 @@ import jaxlie
 import numpy as np
 import tyro
 
+from refine_bands import BANDS, end_on, relative_heading_deg  # noqa: E402 (experiments/, the script's folder)
 from rhaml_jax import allocator, crop, data, frames, render
 from rhaml_jax.camera import T_cam_robot
 from rhaml_jax.refine.alignment import _corners
-
-BANDS = (0.0, 3.0, 4.5, 6.0, 9.0)  # m, as experiments/refine_bands.py
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,9 +95,8 @@ def main(a: Args) -> dict:
         mask, rgb = (np.asarray(x) for x in masks_and_rgb(jnp.asarray(gt), K, box))
         n_mask = np.sum(mask != mask[i0], axis=(1, 2))  # (len(e),) silhouette pixels changed
         n_rgb = np.sum(np.abs(rgb - rgb[i0]).max(-1) > a.colour_step, axis=(1, 2))  # pixels whose colour changed
-        r = float(np.hypot(gt[0], gt[1]))
-        rel = float(np.rad2deg((gt[2] - np.arctan2(gt[1], gt[0]) + np.pi) % (2 * np.pi) - np.pi))
-        rows.append({"rgb": str(fr.rgb), "range_m": r, "x_m": float(gt[0]), "relative_heading_deg": rel,
+        rows.append({"rgb": str(fr.rgb), "range_m": float(np.hypot(gt[0], gt[1])), "x_m": float(gt[0]),
+                     "relative_heading_deg": float(relative_heading_deg(gt[None])[0]),
                      "mask_px": int(mask[i0].sum()), "width_px": float(c[2] - c[0]),
                      **{f"silhouette_{t}": identical_interval(n_mask <= t, e) for t in a.tolerances},
                      **{f"colours_{t}": identical_interval((n_mask <= t) & (n_rgb <= t), e) for t in a.tolerances}})
@@ -113,10 +111,9 @@ def summary(rows: list[dict], tolerances) -> list[dict]:
     (cm) of its midpoint, for the silhouette and for the colours, at each tolerance."""
     r = np.array([x["range_m"] for x in rows])
     x = np.array([x["x_m"] for x in rows])
-    rel = np.abs(np.array([x["relative_heading_deg"] for x in rows]))
-    end_on = np.minimum(rel, 180 - rel) < 20
+    ends = end_on(np.array([x["relative_heading_deg"] for x in rows]))
     out = []
-    for view, m in (("end-on", end_on), ("other", ~end_on), ("all", np.ones_like(end_on))):
+    for view, m in (("end-on", ends), ("other", ~ends), ("all", np.ones_like(ends))):
         for lo, hi in zip(BANDS[:-1], BANDS[1:]):
             k = m & (r >= lo) & (r < hi)
             if not k.any():

@@ -24,6 +24,17 @@ from rhaml_jax import metrics
 BANDS = (0.0, 3.0, 4.5, 6.0, 9.0)  # m
 
 
+def relative_heading_deg(xypsi: np.ndarray) -> np.ndarray:
+    """(N,) the robot's heading relative to the line of sight, (-180, 180] deg, from planar poses (N, 3)."""
+    return np.rad2deg((xypsi[:, 2] - np.arctan2(xypsi[:, 1], xypsi[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
+
+
+def end_on(rel_deg: np.ndarray) -> np.ndarray:
+    """(N,) bool: within 20 deg of head-on or tail-on."""
+    rel = np.abs(rel_deg)
+    return np.minimum(rel, 180 - rel) < 20
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("json", nargs="+")
@@ -42,9 +53,9 @@ def main() -> None:
     d = np.asarray(metrics.abs_errors(jnp.asarray(est, jnp.float32), jnp.asarray(gt, jnp.float32)))
     r = np.hypot(gt[:, 0], gt[:, 1])
     signed = np.hypot(est[:, 0], est[:, 1]) / r - 1
-    rel = np.abs(np.rad2deg((gt[:, 2] - np.arctan2(gt[:, 1], gt[:, 0]) + np.pi) % (2 * np.pi) - np.pi))
-    end_on = np.minimum(rel, 180 - rel) < 20
-    views = (("end-on ", end_on), ("other ", ~end_on)) if a.end_on else (("", np.ones_like(end_on)),)
+    rel = relative_heading_deg(gt)
+    ends = end_on(rel)
+    views = (("end-on ", ends), ("other ", ~ends)) if a.end_on else (("", np.ones_like(ends)),)
     for lo, hi in zip(BANDS[:-1], BANDS[1:]):
         for view, v in views:
             k = v & (r >= lo) & (r < hi)
@@ -52,9 +63,8 @@ def main() -> None:
                 bias = f", range bias {100 * signed[k].mean():+.2f} %" if a.end_on else ""
                 print(f"{view}{lo:.1f}-{hi:.1f} m ({k.sum()}): |dx| {100 * d[k, 0].mean():.2f} cm, |range| {100 * np.abs(signed[k]).mean():.2f} %, "
                       f"|dpsi| {np.rad2deg(d[k, 2]).mean():.2f} deg{bias}")
-    signed_rel = np.rad2deg((gt[:, 2] - np.arctan2(gt[:, 1], gt[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
     for i in np.argsort(-d[:, 0])[: a.worst]:
-        print(f"frame {i}: range {r[i]:.2f} m, relative heading {signed_rel[i]:+.0f} deg, |dx| {100 * d[i, 0]:.2f} cm, "
+        print(f"frame {i}: range {r[i]:.2f} m, relative heading {rel[i]:+.0f} deg, |dx| {100 * d[i, 0]:.2f} cm, "
               f"range {100 * signed[i]:+.2f} %")
 
 if __name__ == "__main__":
