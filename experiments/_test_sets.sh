@@ -1,4 +1,26 @@
-# Issue 15's test-set block, shared by the refiner scripts (sourced; needs DATA, RUNS, PY): the whole
+# Issue 15's blocks shared by the refiner scripts (sourced; need DATA, RUNS, PY).
+#
+# refiner_run RUN CONFIG DATA_SET INIT SEED [TRAIN_ARGS...]: `train --stage refiner` at the refiners'
+# rate, warm-up, batch and checkpointing (resumed when the run exists), then its export to $RUNS/export/RUN.
+refiner_run() {
+  local run=$1 config=$2 set=$3 init=$4 seed=$5
+  shift 5
+  "$PY" -m rhaml_jax.train --stage refiner --config "$config" --data "$DATA/$set" --out "$RUNS/$run" \
+    --init "$init" --lr 3e-4 --warmup 100 --batch 16 --seed "$seed" --ckpt-every 250 --no-progress "$@" \
+    $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
+  [ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
+}
+# val_bench NAME [BENCH_ARGS...]: experiments/bench_refine.py on the 2 x 100 validation frames (our look,
+# seeds 7 and 8, every 10th frame of circle + sine) -> $RUNS/NAME_s{7,8}.json (kept: a rerun skips it).
+val_bench() {
+  local name=$1 s
+  shift
+  for s in 7 8; do
+    [ -f "$RUNS/${name}_s$s.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" \
+      "$DATA/val_scen_s${s}_500/sine" --stride 10 --no-oracle "$@" --json "$RUNS/${name}_s$s.json"
+  done
+}
+# test_sets, the test-set block: the whole
 # pipeline on our and the held-out circle + sine (reported only, after a choice made on validation), then
 # issue 15's table (experiments/bench_refine.py from the paper's noise and from the IML, every 5th frame
 # the IML detected). Each output is kept: a rerun skips it.

@@ -9,16 +9,9 @@
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s41}"
 PY="${PYTHON:-python}"
+. "$(dirname "$0")/_test_sets.sh"
 run=coarse_more
-"$PY" -m rhaml_jax.train --stage refiner --config refiner_cpu --data "$DATA/s40_refine_mix" --out "$RUNS/$run" \
-  --init rhaml_jax/checkpoints/refiner_cpu --lr 3e-4 --warmup 100 --steps 10000 --batch 16 --seed 41 \
-  --val-every 1000 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
-[ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
-for s in 7 8; do
-  for net in rhaml_jax/checkpoints/refiner_cpu "$RUNS/export/$run"; do
-    out="$RUNS/bench_$(basename "$net")_s$s.json"
-    [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
-      --starts noise --stride 10 --refiner "$net" --no-oracle --json "$out" \
-      --fine-refiner rhaml_jax/checkpoints/refiner_fine_more_cpu --fine-iter 2
-  done
+refiner_run $run refiner_cpu s40_refine_mix rhaml_jax/checkpoints/refiner_cpu 41 --steps 10000 --val-every 1000 --val-batches 8
+for net in rhaml_jax/checkpoints/refiner_cpu "$RUNS/export/$run"; do
+  val_bench "bench_$(basename "$net")" --starts noise --refiner "$net" --fine-refiner rhaml_jax/checkpoints/refiner_fine_more_cpu --fine-iter 2
 done

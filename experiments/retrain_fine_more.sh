@@ -18,18 +18,12 @@ gen s40_refine_v1 401 2400 --appearance v1
 gen s40_refine_v3 402 2400 --ranges.repaint-prob 0.5
 [ -d "$DATA/s40_refine_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s40_refine_mix" \
   "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b" "$DATA/s39_refine_v3" "$DATA/s40_refine_v1" "$DATA/s40_refine_v3"
+. "$(dirname "$0")/_test_sets.sh"
 run=fine_more
-"$PY" -m rhaml_jax.train --stage refiner --config refiner_fine_cpu --data "$DATA/s40_refine_mix" --out "$RUNS/$run" \
-  --init rhaml_jax/checkpoints/refiner_fine_long_cpu --lr 3e-4 --warmup 100 --steps 10000 --batch 16 --seed 40 \
-  --val-every 1000 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
-[ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
+refiner_run $run refiner_fine_cpu s40_refine_mix rhaml_jax/checkpoints/refiner_fine_long_cpu 40 \
+  --steps 10000 --val-every 1000 --val-batches 8
 for f in 1 2; do  # fine iterations (session 39's default 1, now 2); the default network's rows: experiments/refine_iterations.sh
-  for s in 7 8; do
-    out="$RUNS/bench_${run}_f${f}_s$s.json"
-    [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
-      --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$RUNS/export/$run" --fine-iter $f \
-      --no-oracle --json "$out"
-  done
+  val_bench "bench_${run}_f$f" --starts noise --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$RUNS/export/$run" --fine-iter $f
 done
 # After the choice (on validation: LABEL=fine_more_f2 NETS=... EXTRA="--fine-iter 2" and then, with the
 # windowed range calibration, LABEL=fine_more_f2_win, experiments/validate_networks.sh; compare_validation.py),
@@ -37,7 +31,6 @@ done
 # refiner_fine_more_cpu, two fine iterations, range_window auto), its pose-graph rows refitted without the
 # window, then issue 15's table (bench_refine.py from the paper's noise and from the IML, every 5th frame the
 # IML detected).
-. "$(dirname "$0")/_test_sets.sh"
 test_sets final rhaml_jax/checkpoints/refiner_fine_more_cpu 2 none --range-window-max-scale None  # session 40's pose graph: the window always
 sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_final_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_final_${set}_sine.json" "$DATA/$set/sine"); done
 [ -f "$RUNS/pipeline_test_final.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_final.json"

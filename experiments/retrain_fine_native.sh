@@ -10,14 +10,8 @@
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s42}"
 PY="${PYTHON:-python}"
+. "$(dirname "$0")/_test_sets.sh"
 run=fine_native
-"$PY" -m rhaml_jax.train --stage refiner --config refiner_fine_native_cpu --data "$DATA/s40_refine_mix" --out "$RUNS/$run" \
-  --init rhaml_jax/checkpoints/refiner_fine_more_cpu --lr 3e-4 --warmup 100 --steps 10000 --batch 16 --seed 42 \
-  --val-every 1000 --ckpt-every 250 --val-batches 8 --no-progress $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
-[ -d "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$run', '$RUNS/export/$run')"
-for s in 7 8; do
-  out="$RUNS/bench_${run}_s$s.json"
-  [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
-    --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$RUNS/export/$run" --fine-iter 2 \
-    --no-oracle --json "$out"
-done
+refiner_run $run refiner_fine_native_cpu s40_refine_mix rhaml_jax/checkpoints/refiner_fine_more_cpu 42 \
+  --steps 10000 --val-every 1000 --val-batches 8
+val_bench bench_$run --starts noise --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$RUNS/export/$run" --fine-iter 2

@@ -18,22 +18,15 @@ gen s39_refine_v1b 392 2400 --appearance v1
 gen s39_refine_v3 393 1600 --ranges.repaint-prob 0.5      # the randomised look (fit's v3) of the control
 [ -d "$DATA/s39_refine_v1mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s39_refine_v1mix" "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b"
 [ -d "$DATA/s39_refine_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s39_refine_mix" "$DATA/s39_refine_v1" "$DATA/s39_refine_v1b" "$DATA/s39_refine_v3"
+. "$(dirname "$0")/_test_sets.sh"
 train() {  # data run steps val_batches val_every
-  "$PY" -m rhaml_jax.train --stage refiner --config refiner_fine_cpu --data "$DATA/$1" --out "$RUNS/$2" \
-    --init rhaml_jax/checkpoints/refiner_fine_cpu --lr 3e-4 --warmup 100 --steps "$3" --batch 16 --seed 39 \
-    --val-every "$5" --ckpt-every 250 --val-batches "$4" --no-progress $( [ -d "$RUNS/$2/checkpoints" ] && echo --resume )
-  [ -d "$RUNS/export/$2" ] || "$PY" -c "from rhaml_jax.refine import export_refiner as e; e('$RUNS/$2', '$RUNS/export/$2')"
+  refiner_run "$2" refiner_fine_cpu "$1" rhaml_jax/checkpoints/refiner_fine_cpu 39 --steps "$3" --val-every "$5" --val-batches "$4"
 }
 train s39_refine_v1 fine_v1 3000 4 500
 train s39_refine_v1mix fine_v1long 10000 8 1000
 train s39_refine_mix fine_mix 10000 8 1000           # the control: the same steps with a third of the images randomised
 bench() {  # label fine-refiner [bench args]
-  local label=$1 fine=$2; shift 2
-  for s in 7 8; do
-    out="$RUNS/bench_${label}_s$s.json"
-    [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" "$DATA/val_scen_s${s}_500/sine" \
-      --starts noise --stride 10 --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$fine" --no-oracle --json "$out" "$@"
-  done
+  val_bench "bench_$1" --starts noise --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner "$2" "${@:3}"
 }
 bench default rhaml_jax/checkpoints/refiner_fine_cpu
 bench fine_v1 "$RUNS/export/fine_v1"
@@ -43,7 +36,6 @@ bench fine_mix "$RUNS/export/fine_mix"
 # networks + fine, then experiments/compare_validation.py), the test and held-out sets, reported only:
 # the whole pipeline with the old and the new fine refiner, then issue 15's table (bench_refine.py from
 # the paper's noise and from the IML, every 5th frame the IML detected).
-. "$(dirname "$0")/_test_sets.sh"
 for fine in refiner_fine_cpu refiner_fine_long_cpu; do  # one fine iteration, session 39's default
   test_sets "$fine" "rhaml_jax/checkpoints/$fine" 1 none
 done
