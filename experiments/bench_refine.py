@@ -27,7 +27,7 @@ import tyro
 
 from rhaml_jax import allocator, data, metrics, render
 from rhaml_jax import crop as _crop
-from rhaml_jax.refine import AlignConfig, RefineConfig, align, load_refiner, load_scorer, load_segmenter, refine
+from rhaml_jax.refine import AlignConfig, RefineConfig, align, check_ensemble, load_refiner, load_scorer, load_segmenter, refine
 from rhaml_jax.refine.segmenter import alignment_target
 from rhaml_jax.refine.alignment import align_to, crop_box
 
@@ -62,8 +62,9 @@ class Args:
     """a refiner checkpoint: also run the learned iterations, then the alignment to its predicted mask"""
     align_predicted: bool = False
     """with --refiner: also run the alignment to the refiner's predicted mask (measured worse: BENCHMARKS.md)"""
-    fine_refiner: Path | None = None
-    """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the others"""
+    fine_refiner: tuple[Path, ...] | None = None
+    """with --refiner: a cascade's fine refiner checkpoint (`--config refiner_fine_cpu`): its iterations after the
+    others (several: an ensemble, their updates averaged)"""
     fine_iter: int = 1
     """with --fine-refiner: `RefineConfig.fine_iter`"""
     n_iter: int | None = None
@@ -215,7 +216,8 @@ def main(a: Args) -> list[dict]:
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
     sc = None if a.scorer is None else load_scorer(a.scorer, data.load_bop_model(a.data[0]))
-    fine = None if a.fine_refiner is None else load_refiner(a.fine_refiner, data.load_bop_model(a.data[0]))
+    fine = None if a.fine_refiner is None else check_ensemble(
+        tuple(load_refiner(f, data.load_bop_model(a.data[0])) for f in a.fine_refiner))
     for name in [n for n in a.starts if n in starts]:  # iml only with --iml-json
         init = starts[name]
         if ref is not None:

@@ -67,10 +67,11 @@ class Args:
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; default: none)"""
-    fine_refiner: Path | None = None
+    fine_refiner: tuple[Path, ...] | None = None
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
-    the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; "none": without;
-    default: the shipped `refine.DEFAULT_FINE_REFINER` when --refiner is not given, else none)"""
+    the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; several folders: an
+    ensemble, their updates averaged; "none": without; default: the shipped `refine.DEFAULT_FINE_REFINER`
+    when --refiner is not given, else none)"""
     fine_iter: int | None = None
     """the ir module's iterations of the fine refiner (`RefineConfig.fine_iter`; None: its default)"""
     refine_mirror: Literal["none", "fine", "all"] | None = None

@@ -384,6 +384,40 @@ def test_mirroring_runs_only_the_iterations_it_names(run, bop_set, tmp_path):
         load_stage(out, lopsided, check_robot=False, mirror="fine")
 
 
+def test_an_ensemble_of_fine_refiners_averages_their_updates(run, bop_set):
+    """`refine(fine=(a, b))`: a fine iteration applies the mean of the members' updates, each read
+    from the same crop with its own network input; a one-member ensemble is that refiner alone.
+    `check_ensemble` refuses an empty ensemble and members of another crop or margin; `load_stage`
+    loads several fine folders as one ensemble and "none" as none."""
+    from rhaml_jax import crop as C
+    from rhaml_jax.refine import check_ensemble, load_stage
+    from rhaml_jax.refine.alignment import _corners
+    from rhaml_jax.refine.train import render_input
+
+    out, coarse, a, mesh, f, img, h, init = _micro_cascade(run, bop_set)
+    b = dataclasses.replace(a, params=jax.tree.map(lambda x: -0.5 * x, a.params))
+    cfg = RefineConfig(camera_height_m=h, align=None, n_iter=1, fine_iter=1)
+    both = refine(coarse, mesh, img, f.K, init, cfg, fine=(a, b))
+    start = both.iterates[1]  # the coarse iteration's pose, where the fine one starts
+    T = camera.T_cam_robot(h) @ frames.se3_from_xypsi(start)
+    T1 = jaxlie.SE3(T.wxyz_xyz[None])
+    box = C.object_box(f.K, T @ _corners(mesh), margin=a.cfg.margin)
+    obs = C.crop_image(img, box, a.cfg.crop, a.cfg.crop)[None]
+    updates = [N.apply(m.cfg, m.params, render_input(mesh, m.cfg, obs, T1, f.K, box)).update for m in (a, b)]
+    assert float(jnp.abs(updates[0] - updates[1]).max()) > 1e-3  # the members disagree
+    want = camera.T_cam_robot(h).inverse() @ jaxlie.SE3(N.apply_update(T1, 0.5 * (updates[0] + updates[1]), f.K, box).wxyz_xyz[0])
+    np.testing.assert_allclose(np.asarray(both.xypsi), np.asarray(frames.xypsi_from_se3(want)), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(refine(coarse, mesh, img, f.K, init, cfg, fine=(a,)).xypsi),
+                               np.asarray(refine(coarse, mesh, img, f.K, init, cfg, fine=a).xypsi), atol=1e-6)
+    with pytest.raises(RhamlError, match="at least one refiner"):
+        check_ensemble(())
+    wide = dataclasses.replace(a, cfg=dataclasses.replace(a.cfg, margin=a.cfg.margin + 0.2))
+    with pytest.raises(RhamlError, match="must share crop and margin"):
+        refine(coarse, mesh, img, f.K, init, cfg, fine=(a, wide))
+    assert isinstance(load_stage(out, bop_set, fine=(out, out))[1].fine, tuple)
+    assert load_stage(out, bop_set, fine=(out,))[1].fine is not None and load_stage(out, bop_set, fine="none")[1].fine is None
+
+
 def test_fine_views_average_the_fine_refiner_from_starts_around_the_pose(run, bop_set):
     """`RefineConfig.fine_views`: the fine refiner runs once from each `view_starts` pose and its
     answers are averaged (the heading as a unit vector); one view is the plain cascade."""

@@ -37,7 +37,7 @@ from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_tar
 
 __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "view_starts", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 # The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
@@ -142,14 +142,16 @@ def _T_cam(xypsi, h):
 
 
 def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfig = RefineConfig(), mask=None,
-           segmenter: Segmenter | None = None, scorer: Scorer | None = None, fine: Refiner | None = None) -> RefineResult:
+           segmenter: Segmenter | None = None, scorer: Scorer | None = None,
+           fine: Refiner | tuple[Refiner, ...] | None = None) -> RefineResult:
     """Refines the planar estimate `init_xypsi` (3,) of the robot seen in `image` (H, W, 3)
     float32 in [0, 1] through intrinsics K (3, 3).
 
     With a refiner: n_iter learned iterations (re-rendering at each new pose); with a `scorer`
     too, then the heading search (`refine.scorer`: the best of rendered heading hypotheses, flips
     included) and cfg.post_iter more learned iterations at the new heading; with a `fine` refiner,
-    then cfg.fine_iter iterations of it (a DeepIM cascade). Then the silhouette
+    then cfg.fine_iter iterations of it (a DeepIM cascade; a tuple of fine refiners is an ensemble
+    whose updates each iteration averages, `check_ensemble`). Then the silhouette
     alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
     image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
     else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
@@ -198,6 +200,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
+        if isinstance(fine, tuple):
+            fine = check_ensemble(fine)[0] if len(fine) == 1 else check_ensemble(fine)
         if fine is not None and cfg.fine_iter:
             if cfg.fine_views > 1:
                 xyp, roll_pitch, its = _multi_view(fine, mesh, corners, image, K, h, xyp, cfg.fine_iter, cfg.fine_views,
@@ -250,14 +254,16 @@ def mirror_update(update):
     return update * jnp.asarray([-1.0, 1.0, 1.0, 1.0, -1.0, -1.0], update.dtype)
 
 
-def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int, mirror: bool = False):
+def _iterate(net: Refiner | tuple[Refiner, ...], mesh, corners, image, K, h, xyp, n: int, mirror: bool = False):
     """n learned iterations of `net` from the planar pose xyp (3,), re-rendering between them:
     (planar pose (3,), roll and pitch (2,), the n iterates as a list of (3,)). `mirror`: each
-    update is the average of the input's and its mirror image's (`RefineConfig.mirror`)."""
+    update is the average of the input's and its mirror image's (`RefineConfig.mirror`). A tuple
+    of refiners is an ensemble (`check_ensemble`): each iteration averages their updates."""
     from rhaml_jax.refine import net as N
     from rhaml_jax.refine.train import render_input
 
-    nc = net.cfg
+    nets = net if isinstance(net, tuple) else (net,)
+    nc = nets[0].cfg  # the crop and margin every member shares
     T_back = T_cam_robot(h).inverse()
     T = _T_cam(xyp, h)
     its = []
@@ -265,15 +271,33 @@ def _iterate(net: Refiner, mesh, corners, image, K, h, xyp, n: int, mirror: bool
         T1 = jaxlie.SE3(T.wxyz_xyz[None])
         bx = jax.lax.stop_gradient(_crop.object_box(K, T @ corners, margin=nc.margin))
         obs = _crop.crop_image(image, bx, nc.crop, nc.crop)
-        x = render_input(mesh, nc, obs[None], T1, K, bx)  # (1, S, S, 7 or 3)
-        update = N.apply(nc, net.params, x).update
-        if mirror:  # the mirrored scene's render, lit from the same side as every render it trained on
-            lx, ly, lz = render.DEFAULT_LIGHT
-            xm = render_input(mesh, nc, obs[None], T1, K, bx, light_dir=(-lx, ly, lz))[:, :, ::-1]
-            update = 0.5 * (update + mirror_update(N.apply(nc, net.params, xm).update))
+        updates = []
+        for m in nets:
+            x = render_input(mesh, m.cfg, obs[None], T1, K, bx)  # (1, S, S, 7 or 3)
+            update = N.apply(m.cfg, m.params, x).update
+            if mirror:  # the mirrored scene's render, lit from the same side as every render it trained on
+                lx, ly, lz = render.DEFAULT_LIGHT
+                xm = render_input(mesh, m.cfg, obs[None], T1, K, bx, light_dir=(-lx, ly, lz))[:, :, ::-1]
+                update = 0.5 * (update + mirror_update(N.apply(m.cfg, m.params, xm).update))
+            updates.append(update)
+        update = sum(updates) / len(updates)
         T = jaxlie.SE3(N.apply_update(T1, update, K, bx).wxyz_xyz[0])
         its.append(frames.xypsi_from_se3(T_back @ T))
     return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2], its
+
+
+def check_ensemble(nets: tuple[Refiner, ...]) -> tuple[Refiner, ...]:
+    """`nets`, refused (RhamlError) unless they can be averaged as one fine refiner: at least one,
+    all reading the same crop (side and margin), so that their updates live in the same box."""
+    from rhaml_jax.errors import RhamlError
+
+    if not nets:
+        raise RhamlError("an ensemble of refiners needs at least one refiner")
+    crops = {(m.cfg.crop, m.cfg.margin) for m in nets}
+    if len(crops) > 1:
+        names = ", ".join(f"{m.cfg.name} (crop {m.cfg.crop}, margin {m.cfg.margin})" for m in nets)
+        raise RhamlError(f"an ensemble's refiners must share crop and margin: {names}")
+    return nets
 
 
 def view_starts(xyp, views: int, spread) -> jax.Array:
@@ -381,12 +405,13 @@ class StageParams(NamedTuple):
     mesh: render.Mesh  # the robot's model
     segmenter: Segmenter | None = None  # the alignment's observed-mask network (None: no alignment)
     scorer: Scorer | None = None  # the heading scorer (None: the learned iterations keep the heading)
-    fine: Refiner | None = None  # a cascade's fine refiner (`RefinerConfig.starts` "fine"; None: none)
+    fine: Refiner | tuple[Refiner, ...] | None = None  # a cascade's fine refiner (`RefinerConfig.starts` "fine";
+    #                                                     a tuple: an ensemble, updates averaged; None: none)
 
 
 def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
-               segmenter: str | Path | None = None, scorer: str | Path | None = None, fine: str | Path | None = None,
-               mirror: str | None = None):
+               segmenter: str | Path | None = None, scorer: str | Path | None = None,
+               fine: str | Path | tuple[str | Path, ...] | None = None, mirror: str | None = None):
     """The pipeline's IR stage: (RefineConfig, StageParams) for `pipeline.PipelineModel.refiner`
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
@@ -394,7 +419,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINER` (`fine` "none": without it; given
     another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
-    with `fine` (a refiner checkpoint folder) by that refiner's iterations (a cascade). `mirror`:
+    with `fine` (a refiner checkpoint folder, or several: an ensemble) by that refiner's iterations (a cascade). `mirror`:
     `RefineConfig.mirror` (None: `DEFAULT_MIRROR` for a left-right symmetric robot, "none" for
     another; mirroring named for an asymmetric robot is refused)."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -408,7 +433,10 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     sc = None if scorer is None else load_scorer(scorer, check)
     if fine is None and ckpt_dir is None:
         fine = shipped_checkpoint(DEFAULT_FINE_REFINER)
-    fn = None if fine is None or str(fine) == "none" else load_refiner(fine, check)
+    fines = [] if fine is None else [fine] if isinstance(fine, (str, Path)) else list(fine)
+    fines = [f for f in fines if str(f) != "none"]
+    fn = None if not fines else load_refiner(fines[0], check) if len(fines) == 1 else check_ensemble(
+        tuple(load_refiner(f, check) for f in fines))
     return RefineConfig(mirror=_mirror_setting(robot, mirror)), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
 
 

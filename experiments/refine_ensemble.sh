@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Issue 15, session 43 (BENCHMARKS.md, "An ensemble of fine refiners"): the fine iterations averaging
+# the updates of two fine refiners (`refine(fine=(a, b))`, `evaluate --fine-refiner A B`), mirrored as
+# the default is: the shipped default with session 42's native-render run (RUNS/export/fine_native,
+# experiments/retrain_fine_native.sh; shipped now as refiner_fine_native_cpu) and with session 39's
+# refiner_fine_long_cpu, on 2 x 100 validation frames (our look, seeds 7 and 8) from the paper's noise
+# and from the truth. Every output is kept: a rerun skips it.
+#   bash experiments/refine_ensemble.sh DATA_ROOT RUNS_ROOT
+set -euo pipefail
+DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s43}"
+PY="${PYTHON:-python}"
+. "$(dirname "$0")/_test_sets.sh"
+ck=rhaml_jax/checkpoints
+more=$ck/refiner_fine_more_cpu; native=${NATIVE:-$ck/refiner_fine_native_cpu}; long=$ck/refiner_fine_long_cpu
+cascade=(--starts noise truth --refiner $ck/refiner_cpu --fine-iter 2 --mirror fine)
+val_bench ens_more_native "${cascade[@]}" --fine-refiner $more "$native"
+val_bench ens_more_long "${cascade[@]}" --fine-refiner $more $long
+val_bench ens_more "${cascade[@]}" --fine-refiner $more                        # the default, the control
