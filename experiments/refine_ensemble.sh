@@ -4,7 +4,8 @@
 # the default is: the shipped default with session 42's native-render run (RUNS/export/fine_native,
 # experiments/retrain_fine_native.sh; shipped now as refiner_fine_native_cpu) and with session 39's
 # refiner_fine_long_cpu, on 2 x 100 validation frames (our look, seeds 7 and 8) from the paper's noise
-# and from the truth. Every output is kept: a rerun skips it.
+# and from the truth (the whole cascade started there); then a third member trained (43 min alone).
+# Every output is kept: a rerun skips it.
 #   bash experiments/refine_ensemble.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s43}"
@@ -16,3 +17,7 @@ cascade=(--starts noise truth --refiner $ck/refiner_cpu --fine-iter 2 --mirror f
 val_bench ens_more_native "${cascade[@]}" --fine-refiner $more "$native"
 val_bench ens_more_long "${cascade[@]}" --fine-refiner $more $long
 val_bench ens_more "${cascade[@]}" --fine-refiner $more                        # the default, the control
+# A third member: the native-render config trained as session 42's run was, but from
+# refiner_fine_long_cpu (another start) with another seed, then the three-member ensemble.
+refiner_run fine_native_b refiner_fine_native_cpu s40_refine_mix $long 43 --steps 10000 --val-every 1000 --val-batches 8
+val_bench ens_three "${cascade[@]}" --fine-refiner $more "$native" "$RUNS/export/fine_native_b"

@@ -3,7 +3,7 @@ backgrounds (same poses, same robot pixels), and how dark the surroundings of th
 each data set (issue 18's "range read long"; BENCHMARKS.md, "The range is read from the
 surroundings, not from the robot alone" and "Dim rooms in training do not take the long range away").
 
-  python experiments/size_cue.py composite --robot A --out OUT [--background B] [--only NAME ...] [--lift-dark L] [--evaluate-args=...]
+  python experiments/size_cue.py composite --robot A --out OUT [--background B] [--only NAME ...] [--lift-dark L] [--keep-box G] [--evaluate-args=...]
   python experiments/size_cue.py check DATA [DATA ...] --out OUT [--evaluate-args=...]
   python experiments/size_cue.py surround DATA [DATA ...] [--runs EVAL.json ...]
   python experiments/size_cue.py brighten DATA OUT [--target 0.35] [--min-exponent 0.4]
@@ -17,6 +17,8 @@ in view: |dx| (cm, mean and median), flips, median estimated / true range, detec
 pixels carry A's shading, so a mismatch of light between robot and room is part of what is tested.
 --only keeps the named backgrounds (e.g. "uniform black"); --lift-dark L adds grey to every robot
 pixel of luma under L so that its luma is L (the robot's dark parts made visible on any background).
+--keep-box G keeps every pixel of the robot's mask's box grown G times about its centre (the robot
+with a window of its own room around it; --lift-dark then applies to the whole window).
 
 check: the IML of --evaluate-args (e.g. other networks, or --no-zoom) on BOP sets, composites
 written before among them; the same columns, one row per set (runs kept in OUT: a rerun skips them).
@@ -79,7 +81,7 @@ def composite(a) -> None:
         raise SystemExit(f"--only: unknown background name(s) {sorted(set(a.only) - set(bgs))}")
     print("| background | abs dx (cm) mean / median | flips | median est/true range | detected |\n| --- | --- | --- | --- | --- |")
     for name, bg in bgs.items():
-        slug = name.replace(" ", "_").replace(",", "").replace(".", "")
+        slug = name.replace(" ", "_").replace(",", "").replace(".", "") + (f"_box{a.keep_box:g}" if a.keep_box else "")
         out, js = a.out / slug, a.out / f"{slug}.json"
         if not js.exists():
             shutil.rmtree(out, ignore_errors=True)
@@ -91,12 +93,24 @@ def composite(a) -> None:
                 img = bg(f.name).copy()
                 if mask.exists():
                     m = np.asarray(Image.open(mask)) > 0
+                    if a.keep_box and m.any():  # the robot's box grown about its centre: all its pixels kept
+                        m = _grown_box(m, a.keep_box)
                     px = np.asarray(Image.open(f).convert("RGB")).astype(np.float32)
                     if a.lift_dark > 0:
                         px = px + np.maximum(0.0, 255.0 * a.lift_dark - _luma(px) * 255.0)[..., None]
                     img[m] = np.clip(px[m] + 0.5, 0, 255).astype(np.uint8)
                 Image.fromarray(img).save(dst / f.name)
         print(_iml_row(name, out, js, a.evaluate_args), flush=True)
+
+
+def _grown_box(m: np.ndarray, grow: float) -> np.ndarray:
+    """(H, W) bool: the box of mask m grown `grow` times about its centre (clipped to the image)."""
+    ys, xs = np.nonzero(m)
+    cy, cx = 0.5 * (ys.min() + ys.max() + 1), 0.5 * (xs.min() + xs.max() + 1)
+    hy, hx = 0.5 * grow * (ys.max() + 1 - ys.min()), 0.5 * grow * (xs.max() + 1 - xs.min())
+    out = np.zeros_like(m)
+    out[max(0, int(round(cy - hy))):int(round(cy + hy)), max(0, int(round(cx - hx))):int(round(cx + hx))] = True
+    return out
 
 
 def _iml_row(name: str, data: Path, js: Path, evaluate_args: str) -> str:
@@ -184,6 +198,7 @@ def main() -> None:
     c.add_argument("--evaluate-args", default="")
     c.add_argument("--only", nargs="+", default=[])
     c.add_argument("--lift-dark", type=float, default=0.0)
+    c.add_argument("--keep-box", type=float, default=0.0, help="keep the robot's box grown this many times (room included)")
     k = sub.add_parser("check")
     k.add_argument("data", type=Path, nargs="+")
     k.add_argument("--out", type=Path, required=True)

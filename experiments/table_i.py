@@ -37,9 +37,10 @@ PAPER = {"frontnet": ((30.3, 36.7), (50.9, 75.8), (64.9, 53.2), 2.21, 0.33, 0.07
 
 def refiner_size() -> dict:
     """The default IR cascade as the pipeline loads it (`refine.load_stage()`: the refiner for
-    `RefineConfig` n_iter iterations, then the fine refiner for fine_iter): parameters (leaves of
-    both params pytrees) and MACs per frame at batch 1, counted as amlnet/count.py counts (the
-    jaxpr's convolutions and matrix products)."""
+    `RefineConfig` n_iter iterations, then each fine refiner of the ensemble for fine_iter; a
+    mirrored iteration reads its crop twice): parameters (leaves of every params pytree) and MACs
+    per frame at batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and matrix
+    products)."""
     import math
 
     import jax
@@ -50,8 +51,10 @@ def refiner_size() -> dict:
 
     cfg, stage = load_stage()
     out = {"params": 0, "macs": 0, "networks": []}
-    for r, n in ((stage.refiner, cfg.n_iter), (stage.fine, cfg.fine_iter)):
-        n = r.cfg.n_iter if n is None else n
+    fines = stage.fine if isinstance(stage.fine, tuple) else (stage.fine,)  # an ensemble: each member every iteration
+    reads = {"none": (1, 1), "fine": (1, 2), "all": (2, 2)}[cfg.mirror]  # a mirrored iteration reads its crop twice
+    coarse = (stage.refiner.cfg.n_iter if cfg.n_iter is None else cfg.n_iter) * reads[0]
+    for r, n in ((stage.refiner, coarse), *((f, cfg.fine_iter * reads[1]) for f in fines)):
         x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
         macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x, r=r: net.apply(r.cfg, p, x))(r.params, x).jaxpr))
         params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(r.params)))

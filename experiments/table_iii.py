@@ -2,7 +2,7 @@
 both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
 
   python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
-      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT [--fine-refiner CKPT]]
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT [--fine-refiner CKPT [CKPT ...]]]
 
 Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
 """
@@ -25,8 +25,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--amlnet", default=None, help="AMLNet checkpoint folder (default: the shipped one)")
     ap.add_argument("--zoom", default=None, help="zoom-stage checkpoint folder (default: the shipped one)")
     ap.add_argument("--refiner", default=None, help="refiner checkpoint folder for ir (default: the shipped cascade)")
-    ap.add_argument("--fine-refiner", default=None, help="a cascade's fine refiner after --refiner (fit's networks/fine; "
-                                                         "without --refiner the shipped one runs, 'none' turns it off)")
+    ap.add_argument("--fine-refiner", nargs="+", default=None,
+                    help="a cascade's fine refiner after --refiner (fit's networks/fine; several: an ensemble; "
+                         "without --refiner the shipped ones run, 'none' turns them off)")
     a = ap.parse_args(argv)
     from rhaml_jax import iml, pgo, tune_allocator
 

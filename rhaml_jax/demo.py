@@ -62,7 +62,7 @@ def _combination_available(mods) -> str | None:
 
 
 def run_combination(mods, iml_model, iml_params, scenes: list, data_dir: Path, fusion=None,
-                    refiner_dir: Path | None = None, fine_dir: Path | str | None = None) -> tuple[dict, list]:
+                    refiner_dir: Path | None = None, fine_dir: Path | str | list[Path | str] | None = None) -> tuple[dict, list]:
     """One module combination over BOP scenes (lists of frames) with the given IML (and for "ir"
     the refiner in `refiner_dir` with the fine refiner `fine_dir`, as `refine.load_stage` takes
     them: by default the shipped cascade): (the paper's metrics over all scenes + fps, the

@@ -70,7 +70,7 @@ class Args:
     fine_refiner: tuple[Path, ...] | None = None
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
     the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; several folders: an
-    ensemble, their updates averaged; "none": without; default: the shipped `refine.DEFAULT_FINE_REFINER`
+    ensemble, their updates averaged; "none": without; default: the shipped `refine.DEFAULT_FINE_REFINERS`
     when --refiner is not given, else none)"""
     fine_iter: int | None = None
     """the ir module's iterations of the fine refiner (`RefineConfig.fine_iter`; None: its default)"""

@@ -10,7 +10,7 @@ import pytest
 
 from rhaml_jax.amlnet import decode, get_config, load_model, shipped_checkpoint
 from rhaml_jax.data import OnTheFly, SynthConfig
-from rhaml_jax.refine import DEFAULT_FINE_REFINER, DEFAULT_REFINER
+from rhaml_jax.refine import DEFAULT_FINE_REFINERS, DEFAULT_REFINER
 
 # Validation split (BENCHMARKS.md): detection 0.971, mean |dx| 47.6 cm, |dy| 28.1 cm; with 32
 # images the bounds leave room for sampling noise and still fail a model that learned nothing
@@ -103,7 +103,7 @@ def test_default_iml_localises_rendered_robots():
     assert np.median(dpsi) < 15.0, np.sort(dpsi)
 
 
-@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, DEFAULT_FINE_REFINER, "refiner_cpu", "refiner_fine_cpu", "refiner_fine_long_cpu",
+@pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, *DEFAULT_FINE_REFINERS, "refiner_cpu", "refiner_fine_cpu", "refiner_fine_long_cpu",
                                          "refiner_fit167_cpu", "refiner_fit180_cpu"}))
 def test_shipped_refiner_size_and_robot(name):
     """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and the others): within the size
@@ -119,8 +119,9 @@ def test_shipped_refiner_size_and_robot(name):
     assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
     robot = load_robot("pioneer3dx")
     refiner = load_refiner(path, robot)
-    fine = name in (DEFAULT_FINE_REFINER, "refiner_fine_cpu", "refiner_fine_long_cpu")  # a cascade's second stage
-    assert refiner.cfg.name == ("refiner_fine_cpu" if fine else "refiner_cpu")
+    fine = name in (*DEFAULT_FINE_REFINERS, "refiner_fine_cpu", "refiner_fine_long_cpu")  # a cascade's second stage
+    assert refiner.cfg.name == ("refiner_fine_native_cpu" if name == "refiner_fine_native_cpu" else
+                                "refiner_fine_cpu" if fine else "refiner_cpu")
     assert refiner.cfg.starts == ("fine" if fine else "coarse")
     assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(refiner.params))
     with pytest.raises(RhamlError, match="refiner checkpoint is for robot"):
@@ -128,13 +129,14 @@ def test_shipped_refiner_size_and_robot(name):
 
 
 def test_the_default_ir_stage_is_the_shipped_cascade():
-    """`refine.load_stage()`: the shipped refiner, then the shipped fine one; "none" leaves the fine
-    one out, and another refiner runs without it unless one is named."""
+    """`refine.load_stage()`: the shipped refiner, then the shipped fine ones (an ensemble); "none"
+    leaves them out, and another refiner runs without them unless one is named."""
     from rhaml_jax.refine import load_stage
 
     _, stage = load_stage()
-    assert stage.refiner.cfg.starts == "coarse" and stage.fine.cfg.name == "refiner_fine_cpu"
+    assert stage.refiner.cfg.starts == "coarse"
+    assert [m.cfg.name for m in stage.fine] == ["refiner_fine_cpu", "refiner_fine_native_cpu"]
     assert load_stage(fine="none")[1].fine is None
     assert load_stage(shipped_checkpoint("refiner_fit180_cpu"))[1].fine is None
-    named = load_stage(shipped_checkpoint("refiner_fit180_cpu"), fine=shipped_checkpoint(DEFAULT_FINE_REFINER))[1]
+    named = load_stage(shipped_checkpoint("refiner_fit180_cpu"), fine=shipped_checkpoint(DEFAULT_FINE_REFINERS[0]))[1]
     assert named.fine.cfg.starts == "fine"

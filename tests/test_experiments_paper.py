@@ -58,11 +58,13 @@ def test_table_i_json_and_npz(table):
                 assert np.isfinite(est).all()
                 assert all(math.isfinite(v) for k in ("dx_cm", "dy_cm", "dpsi_deg") for v in m[k])
                 assert math.isfinite(m["ate"]) and m["fps"] > 0
-    # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations and the fine refiner's
-    from rhaml_jax.refine import RefineConfig
+    # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations and the fine ensemble's
+    # two members' iterations, each read twice (the default mirrors the fine iterations of this robot)
+    from rhaml_jax.refine import DEFAULT_MIRROR, RefineConfig
 
     r, ir = res["rows"], table_i.refiner_size()
-    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", f"refiner_fine_cpu x {RefineConfig().fine_iter}"]
+    k = RefineConfig().fine_iter * (2 if DEFAULT_MIRROR != "none" else 1)
+    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", f"refiner_fine_cpu x {k}", f"refiner_fine_native_cpu x {k}"]
     assert r["rhaml"]["params"] == r["iml"]["params"] + ir["params"] and r["rhaml"]["macs"] == r["iml"]["macs"] + ir["macs"]
     assert r["rhaml"]["params"] > r["iml"]["params"] > r["amlnet"]["params"]
     assert r["rhaml"]["macs"] > r["iml"]["macs"] > r["amlnet"]["macs"]
@@ -116,18 +118,19 @@ def test_table_iii_names_the_cascade(table):
     import table_iii
 
     from rhaml_jax.amlnet import shipped_checkpoint
-    from rhaml_jax.refine import DEFAULT_FINE_REFINER, DEFAULT_REFINER
+    from rhaml_jax.refine import DEFAULT_FINE_REFINERS, DEFAULT_REFINER
 
     out, res = table
     args = ["--ours", str(out.parents[1] / "ours"), "--frames", "4", "--combos", "iml,ir,pgo", "--out", str(out.parent / "t3.json"),
             "--refiner", str(shipped_checkpoint(DEFAULT_REFINER))]
     keys = ("dx_cm", "dy_cm", "dpsi_deg", "ate", "detection")
-    cascade = table_iii.main([*args, "--fine-refiner", str(shipped_checkpoint(DEFAULT_FINE_REFINER))])
+    fines = ["--fine-refiner", *(str(shipped_checkpoint(n)) for n in DEFAULT_FINE_REFINERS)]
+    cascade = table_iii.main([*args, *fines])
     assert [r["information"] for r in cascade["rows"]] == ["noise_model", "paper"]
     assert json.loads((out.parent / "t3.json").read_text()) == json.loads(json.dumps(cascade))
     row = cascade["rows"][0]
     assert {k: row[k] for k in keys} == {k: res["rows"]["rhaml"]["ours"][k] for k in keys}
     assert row["detection"]["tp"] == 8  # IR ran on every frame
     ir = [table_iii.main([*args, *more, "--combos", "iml,ir"])["rows"][0]["dx_cm"]
-          for more in (["--fine-refiner", str(shipped_checkpoint(DEFAULT_FINE_REFINER))], [])]
+          for more in (fines, [])]
     assert ir[0] != ir[1]  # the fine refiner ran in the first only

@@ -423,16 +423,7 @@ def test_fine_views_average_the_fine_refiner_from_starts_around_the_pose(run, bo
     answers are averaged (the heading as a unit vector); one view is the plain cascade."""
     from rhaml_jax.refine import view_starts
 
-    out, _, _ = run
-    model = load_bop_model(bop_set)
-    mesh = render.as_mesh(model)
-    coarse = load_refiner(out, model)
-    fine = dataclasses.replace(coarse, cfg=N.get_refiner_config("refiner_micro_fine"),
-                               params=jax.tree.map(lambda a: a + 0.05, coarse.params))
-    f = [f for f in read_bop(bop_set, "train") if f.observed][0]
-    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
-    h = float(np.linalg.inv(f.T_w2c)[2, 3])
-    init = jnp.asarray(f.xypsi + np.array([0.1, -0.05, 0.2]), jnp.float32)
+    _, coarse, fine, mesh, f, img, h, init = _micro_cascade(run, bop_set)
     cfg = RefineConfig(camera_height_m=h, align=None, n_iter=1, fine_iter=1, fine_views=4)
     many = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
     after_coarse = many.iterates[1]

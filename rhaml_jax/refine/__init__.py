@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINER", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -376,11 +376,15 @@ validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit
 it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
 
 
-DEFAULT_FINE_REFINER = "refiner_fine_more_cpu"
-"""the shipped cascade's fine refiner (config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"), run
-after `DEFAULT_REFINER` unless another refiner is given (chosen on validation: BENCHMARKS.md, "The
-fine refiner on twice the images"; the two it was trained from ship beside it: `refiner_fine_long_cpu`,
-"The fine refiner trained longer", and session 29's `refiner_fine_cpu`, "A fine refiner")"""
+DEFAULT_FINE_REFINERS = ("refiner_fine_more_cpu", "refiner_fine_native_cpu")
+"""the shipped cascade's fine refiners, run after `DEFAULT_REFINER` unless another refiner is given:
+an ensemble whose fine iterations average the two updates (`check_ensemble`). `refiner_fine_more_cpu`
+(config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"; BENCHMARKS.md, "The fine refiner on twice
+the images") and `refiner_fine_native_cpu` (trained from it on renders at the image's pixel centres,
+`RefinerConfig.native`). Chosen on validation: the ensemble takes 11 % off |dx| from the paper's noise
+and 1.6 % off the IML+IR position over the validation looks (BENCHMARKS.md, "An ensemble of fine
+refiners"). The fine refiners they were trained from ship beside them: `refiner_fine_long_cpu`, "The
+fine refiner trained longer", and session 29's `refiner_fine_cpu` ("A fine refiner")"""
 
 
 DEFAULT_MIRROR = "fine"
@@ -416,7 +420,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
-    `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINER` (`fine` "none": without it; given
+    `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINERS` (`fine` "none": without them; given
     another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder, or several: an ensemble) by that refiner's iterations (a cascade). `mirror`:
@@ -432,7 +436,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     seg = None if segmenter is None else load_segmenter(segmenter, check)
     sc = None if scorer is None else load_scorer(scorer, check)
     if fine is None and ckpt_dir is None:
-        fine = shipped_checkpoint(DEFAULT_FINE_REFINER)
+        fine = tuple(shipped_checkpoint(n) for n in DEFAULT_FINE_REFINERS)
     fines = [] if fine is None else [fine] if isinstance(fine, (str, Path)) else list(fine)
     fines = [f for f in fines if str(f) != "none"]
     fn = None if not fines else load_refiner(fines[0], check) if len(fines) == 1 else check_ensemble(
