@@ -4,7 +4,9 @@
 # the default is: the shipped default with session 42's native-render run (RUNS/export/fine_native,
 # experiments/retrain_fine_native.sh; shipped now as refiner_fine_native_cpu) and with session 39's
 # refiner_fine_long_cpu, on 2 x 100 validation frames (our look, seeds 7 and 8) from the paper's noise
-# and from the truth (the whole cascade started there); then a third member trained (43 min alone).
+# and from the truth (the whole cascade started there); then a third member trained (43 min alone),
+# the IR time, and the test and held-out sets (reported only). The validation by the rule:
+#   LABEL=ens_native EXTRA="--fine-refiner MORE NATIVE" bash experiments/validate_networks.sh
 # Every output is kept: a rerun skips it.
 #   bash experiments/refine_ensemble.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
@@ -21,3 +23,10 @@ val_bench ens_more "${cascade[@]}" --fine-refiner $more                        #
 # refiner_fine_long_cpu (another start) with another seed, then the three-member ensemble.
 refiner_run fine_native_b refiner_fine_native_cpu s40_refine_mix $long 43 --steps 10000 --val-every 1000 --val-batches 8
 val_bench ens_three "${cascade[@]}" --fine-refiner $more "$native" "$RUNS/export/fine_native_b"
+# The IR stage's time, the ensemble (the default) against its first member alone, interleaved medians.
+[ -f "$RUNS/time_ensemble.log" ] || "$PY" experiments/time_refine_iterations.py --data "$DATA/ours/circle" --batch 8 --repeats 15 \
+  --settings 4,2,fine --fine-refiner $more > "$RUNS/time_ensemble.log"
+# The test and held-out sets with the ensemble (reported only, after the choice on validation).
+test_sets ensemble "$more $native" 2 fine
+sets=(); for set in ours heldout; do sets+=(--set $set "$RUNS/test_ensemble_${set}_circle.json" "$DATA/$set/circle" "$RUNS/test_ensemble_${set}_sine.json" "$DATA/$set/sine"); done
+[ -f "$RUNS/pipeline_test_ensemble.json" ] || "$PY" experiments/pipeline_from_json.py "${sets[@]}" --out "$RUNS/pipeline_test_ensemble.json"

@@ -200,8 +200,9 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
-        if isinstance(fine, tuple):
-            fine = check_ensemble(fine)[0] if len(fine) == 1 else check_ensemble(fine)
+        if isinstance(fine, tuple):  # an ensemble; of one member, that refiner alone
+            fine = check_ensemble(fine)
+            fine = fine[0] if len(fine) == 1 else fine
         if fine is not None and cfg.fine_iter:
             if cfg.fine_views > 1:
                 xyp, roll_pitch, its = _multi_view(fine, mesh, corners, image, K, h, xyp, cfg.fine_iter, cfg.fine_views,
