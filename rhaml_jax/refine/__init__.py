@@ -383,7 +383,7 @@ an ensemble whose fine iterations average the two updates (`check_ensemble`). `r
 (config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"; BENCHMARKS.md, "The fine refiner on twice
 the images") and `refiner_fine_native_cpu` (trained from it on renders at the image's pixel centres,
 `RefinerConfig.native`). Chosen on validation: the ensemble takes 11 % off |dx| from the paper's noise
-and 1.6 % off the IML+IR position over the validation looks (BENCHMARKS.md, "An ensemble of fine
+and 1.9 % off the IML+IR position over the validation looks (BENCHMARKS.md, "An ensemble of fine
 refiners"). The fine refiners they were trained from ship beside them: `refiner_fine_long_cpu`, "The
 fine refiner trained longer", and session 29's `refiner_fine_cpu` ("A fine refiner")"""
 
