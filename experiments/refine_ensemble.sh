@@ -19,6 +19,7 @@ cascade=(--starts noise truth --refiner $ck/refiner_cpu --fine-iter 2 --mirror f
 val_bench ens_more_native "${cascade[@]}" --fine-refiner $more "$native"
 val_bench ens_more_long "${cascade[@]}" --fine-refiner $more $long
 val_bench ens_more "${cascade[@]}" --fine-refiner $more                        # the default, the control
+val_bench ens_more_native_f3 --starts noise --refiner $ck/refiner_cpu --fine-iter 3 --mirror fine --fine-refiner $more "$native"
 # A third member: the native-render config trained as session 42's run was, but from
 # refiner_fine_long_cpu (another start) with another seed, then the three-member ensemble.
 refiner_run fine_native_b refiner_fine_native_cpu s40_refine_mix $long 43 --steps 10000 --val-every 1000 --val-batches 8
