@@ -200,9 +200,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
-        if isinstance(fine, tuple):  # an ensemble; of one member, that refiner alone
+        if isinstance(fine, tuple):
             fine = check_ensemble(fine)
-            fine = fine[0] if len(fine) == 1 else fine
         if fine is not None and cfg.fine_iter:
             if cfg.fine_views > 1:
                 xyp, roll_pitch, its = _multi_view(fine, mesh, corners, image, K, h, xyp, cfg.fine_iter, cfg.fine_views,
@@ -287,9 +286,10 @@ def _iterate(net: Refiner | tuple[Refiner, ...], mesh, corners, image, K, h, xyp
     return frames.xypsi_from_se3(T_back @ T), frames.roll_pitch_yaw(T_back @ T)[:2], its
 
 
-def check_ensemble(nets: tuple[Refiner, ...]) -> tuple[Refiner, ...]:
-    """`nets`, refused (RhamlError) unless they can be averaged as one fine refiner: at least one,
-    all reading the same crop (side and margin), so that their updates live in the same box."""
+def check_ensemble(nets: tuple[Refiner, ...]) -> Refiner | tuple[Refiner, ...]:
+    """`nets` as a fine refiner: the tuple (an ensemble), or its one member alone; refused
+    (RhamlError) unless they can be averaged: at least one, all reading the same crop (side and
+    margin), so that their updates live in the same box."""
     from rhaml_jax.errors import RhamlError
 
     if not nets:
@@ -298,7 +298,7 @@ def check_ensemble(nets: tuple[Refiner, ...]) -> tuple[Refiner, ...]:
     if len(crops) > 1:
         names = ", ".join(f"{m.cfg.name} (crop {m.cfg.crop}, margin {m.cfg.margin})" for m in nets)
         raise RhamlError(f"an ensemble's refiners must share crop and margin: {names}")
-    return nets
+    return nets[0] if len(nets) == 1 else nets
 
 
 def view_starts(xyp, views: int, spread) -> jax.Array:
@@ -325,7 +325,7 @@ def _circular_mean(p):
     return jnp.concatenate([p[:, :2].mean(0), jnp.arctan2(jnp.sin(p[:, 2]).mean(0), jnp.cos(p[:, 2]).mean(0))[None]])
 
 
-def _multi_view(net: Refiner, mesh, corners, image, K, h, xyp, n: int, views: int, spread, mirror: bool = False):
+def _multi_view(net: Refiner | tuple[Refiner, ...], mesh, corners, image, K, h, xyp, n: int, views: int, spread, mirror: bool = False):
     """`_iterate` from each of `view_starts` at once, averaged (test-time augmentation: each start
     crops and renders the robot a little differently, so the network's per-crop errors average out)."""
     run = jax.vmap(lambda s: _iterate(net, mesh, corners, image, K, h, s, n, mirror))
@@ -440,8 +440,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
         fine = tuple(shipped_checkpoint(n) for n in DEFAULT_FINE_REFINERS)
     fines = [] if fine is None else [fine] if isinstance(fine, (str, Path)) else list(fine)
     fines = [f for f in fines if str(f) != "none"]
-    fn = None if not fines else load_refiner(fines[0], check) if len(fines) == 1 else check_ensemble(
-        tuple(load_refiner(f, check) for f in fines))
+    fn = check_ensemble(tuple(load_refiner(f, check) for f in fines)) if fines else None
     return RefineConfig(mirror=_mirror_setting(robot, mirror)), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
 
 
