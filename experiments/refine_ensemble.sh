@@ -4,7 +4,7 @@
 # the default is: the shipped default with session 42's native-render run (RUNS/export/fine_native,
 # experiments/retrain_fine_native.sh; shipped now as refiner_fine_native_cpu) and with session 39's
 # refiner_fine_long_cpu, on 2 x 100 validation frames (our look, seeds 7 and 8) from the paper's noise
-# and from the truth (the whole cascade started there); then a third member trained (43 min alone),
+# and from the truth (the whole cascade started there); then a third member trained (42 min here, beside other jobs),
 # the IR time, and the test and held-out sets (reported only). The validation by the rule:
 #   LABEL=ens_native EXTRA="--fine-refiner MORE NATIVE" bash experiments/validate_networks.sh
 # Every output is kept: a rerun skips it.
