@@ -67,6 +67,11 @@ class Args:
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; default: none)"""
+    flip_threshold: float | None = None
+    """with --scorer: the scorer's probability of the other side needed to turn the heading
+    (`RefineConfig.flip_threshold`; None: its default)"""
+    post_iter: int | None = None
+    """with --scorer: learned iterations of the refiner after the heading search (`RefineConfig.post_iter`; None: its default)"""
     fine_refiner: tuple[Path, ...] | None = None
     """a cascade's fine refiner checkpoint folder (`train --stage refiner --config refiner_fine_cpu`;
     the ir module: `RefineConfig.fine_iter` iterations of it after the refiner's; several folders: an
@@ -165,8 +170,9 @@ def _load(args: Args, modules):
         refiner, refiner_params = refine.load_stage(args.refiner, args.data, check_robot=not args.allow_other_robot,
                                                     segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner,
                                                     mirror=args.refine_mirror)
-        refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step,
-                                      fine_iter=refiner.fine_iter if args.fine_iter is None else args.fine_iter)
+        given = {k: v for k, v in (("fine_iter", args.fine_iter), ("flip_threshold", args.flip_threshold),
+                                   ("post_iter", args.post_iter)) if v is not None}
+        refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step, **given)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   calibrate_range=not args.no_range_calibration, range_window=args.range_window,

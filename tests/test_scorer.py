@@ -149,3 +149,74 @@ def test_refine_with_a_scorer_is_finite_declines_and_passes_gradients(run, bop_s
     np.testing.assert_allclose(bad.xypsi, [-2.0, 0.0, 0.0])
     g = jax.grad(lambda init: jnp.sum(go(init).xypsi))(jnp.asarray(f.xypsi, jnp.float32))
     assert np.isfinite(np.asarray(g)).all() and float(jnp.abs(g[2])) > 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-np.pi, np.pi), st.floats(-np.pi, np.pi),
+       st.floats(-0.3, 0.3), st.floats(-0.3, 0.3))
+def test_a_turn_about_a_pivot_keeps_it_in_place_and_undoes(x, y, psi, angle, px, py):
+    pose, pivot = jnp.asarray([x, y, psi]), jnp.asarray([px, py])
+    t = S.turned(pose, angle, pivot)
+
+    def world(p):  # the pivot's place in the world at planar pose p
+        c, s = jnp.cos(p[2]), jnp.sin(p[2])
+        return p[:2] + jnp.stack([c * px - s * py, s * px + c * py])
+
+    np.testing.assert_allclose(world(t), world(pose), atol=1e-5)
+    np.testing.assert_allclose(float(t[2]), psi + angle, atol=1e-6)
+    np.testing.assert_allclose(S.turned(t, -angle, pivot), pose, atol=1e-5)
+
+
+def test_flip_examples_turn_about_the_box_centre(bop_set):
+    """The front/back scorer's two hypotheses: the drawn estimate (within near_deg of the truth)
+    and it turned by 180 deg about the model's box centre, which stays where it was."""
+    cfg = S.get_scorer_config("scorer_flip_micro")
+    src = S.ScorerSource(bop_set, "train", cfg, 6, seed=5)
+    b = src(0)
+    assert b.T_hyp.shape == (6, 2, 7)
+    assert np.all(np.abs(np.rad2deg(b.err[:, 0])) <= cfg.near_deg + 1e-3)
+    np.testing.assert_allclose(np.abs(_wrap(b.err[:, 1] - b.err[:, 0])), np.pi, atol=1e-4)
+    v = src.model.vertices
+    centre = np.append(S.pivot_xy(cfg, v), 0.0)
+    assert abs(centre[0]) > 0.01  # the Pioneer's box centre is not its frame's origin: the test can fail
+    import jaxlie
+
+    at = [np.asarray(jaxlie.SE3(jnp.asarray(b.T_hyp[:, h])) @ jnp.asarray(centre)) for h in range(2)]
+    np.testing.assert_allclose(at[0], at[1], atol=1e-5)
+    with pytest.raises(RhamlError, match="pivot"):
+        dataclasses.replace(cfg, pivot="tail")
+
+
+def test_the_flip_search_turns_about_the_box_centre(bop_set, monkeypatch):
+    """With a score that prefers the turned hypothesis, refine.heading_search answers the pose
+    turned by 180 deg about the box centre, with the probability that the answer is wrong;
+    gradients pass straight through; a threshold above the other side's probability keeps the pose."""
+    from rhaml_jax.refine import heading_search
+
+    cfg = S.get_scorer_config("scorer_flip_micro")
+    model = load_bop_model(bop_set)
+    mesh = render.as_mesh(model)
+    sc = S.Scorer(S.init_params(cfg, jax.random.key(0)), cfg)
+    monkeypatch.setattr(S, "apply", lambda c, p, x: jnp.asarray([0.0, 2.0]))  # (psi0, psi0 + pi)
+    f = read_bop(bop_set, "train")[0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    x0 = jnp.asarray(f.xypsi, jnp.float32)
+    pose, p_wrong, _ = heading_search(sc, mesh, img, f.K, x0, float(f.camera_height_m), 0.5)
+    pivot = S.pivot_xy(cfg, np.asarray(mesh.vertices))
+    want = S.turned(x0, np.pi, jnp.asarray(pivot))
+    np.testing.assert_allclose(pose[:2], want[:2], atol=1e-4)
+    assert abs(_wrap(float(pose[2] - want[2]))) < 1e-4
+    assert float(p_wrong) == pytest.approx(1 - float(jax.nn.sigmoid(2.0)), abs=1e-5)  # the answer's doubt
+    kept, p_kept, _ = heading_search(sc, mesh, img, f.K, x0, float(f.camera_height_m), 0.9)
+    np.testing.assert_allclose(kept, x0, atol=1e-6)
+    assert float(p_kept) == pytest.approx(float(jax.nn.sigmoid(2.0)), abs=1e-5)
+    g = jax.jacobian(lambda x: heading_search(sc, mesh, img, f.K, x, float(f.camera_height_m), 0.5)[0])(x0)
+    np.testing.assert_allclose(g, np.eye(3), atol=1e-6)
+
+
+def test_a_threshold_outside_zero_to_one_is_refused():
+    for bad in (-0.1, 1.5):
+        with pytest.raises(RhamlError, match="flip_threshold"):
+            RefineConfig(flip_threshold=bad)
+    with pytest.raises(RhamlError, match="post_iter"):
+        RefineConfig(post_iter=-1)

@@ -37,7 +37,7 @@ from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_tar
 
 __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 # The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
@@ -110,6 +110,10 @@ class RefineConfig:
             raise RhamlError(f"RefineConfig.max_final_step must be > 0 or None, got {self.max_final_step}")
         if self.n_iter is not None and self.n_iter < 1:
             raise RhamlError(f"RefineConfig.n_iter must be >= 1 or None, got {self.n_iter}")
+        if not 0 <= self.flip_threshold <= 1:
+            raise RhamlError(f"RefineConfig.flip_threshold must be in [0, 1], got {self.flip_threshold}")
+        if self.post_iter < 0:
+            raise RhamlError(f"RefineConfig.post_iter must be >= 0, got {self.post_iter}")
         if self.fine_iter < 0:
             raise RhamlError(f"RefineConfig.fine_iter must be >= 0, got {self.fine_iter}")
         if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
@@ -333,6 +337,14 @@ def _multi_view(net: Refiner | tuple[Refiner, ...], mesh, corners, image, K, h, 
     return _circular_mean(p), rp.mean(0), [_circular_mean(i) for i in its]
 
 
+def heading_search(scorer: Scorer, mesh, image, K, xypsi, h: float, flip_threshold: float):
+    """The scorer's heading search alone at the planar pose xypsi (3,) in `image` (H, W, 3) in
+    [0, 1]: (planar pose, probability that the answer faces the wrong way, flip confidence); `h`
+    the camera height (`RefineConfig.camera_height_m`). With `flip_threshold` 1 the pose is kept
+    and the probability is that of the other side."""
+    return _heading_search(scorer, mesh, _corners(mesh), image, K, xypsi, h, flip_threshold)
+
+
 def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_threshold: float):
     """The scorer's heading at the position of xyp (3,): (planar pose, flip probability, flip
     confidence). Straight-through in the heading (d result / d xyp = identity): the search is an
@@ -342,16 +354,18 @@ def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_thresh
     sc = scorer.cfg
     box = jax.lax.stop_gradient(_crop.object_box(K, _T_cam(xyp, h) @ corners, margin=sc.margin))
     obs = _crop.crop_image(image, box, sc.crop, sc.crop)
-    pos = jax.lax.stop_gradient(xyp[:2])
+    x0 = jax.lax.stop_gradient(xyp)
+    pivot = jnp.asarray(S.pivot_xy(sc, corners), xyp.dtype)  # the box's corners span the model's box
 
     def score(headings):
-        T = jax.vmap(lambda p: _T_cam(jnp.concatenate([pos, p[None]]), h).wxyz_xyz)(headings)
+        T = jax.vmap(lambda p: _T_cam(S.turned(x0, p - x0[2], pivot), h).wxyz_xyz)(headings)
         return S.apply(sc, scorer.params, S.score_input(mesh, sc, obs, jaxlie.SE3(T), K, box))
 
-    r = S.search_heading(score, jax.lax.stop_gradient(xyp[2]), sc.grid, sc.fine, float(np.deg2rad(sc.fine_step_deg)),
-                         flip_threshold)
-    turn = jax.lax.stop_gradient(jnp.arctan2(jnp.sin(r.psi - xyp[2]), jnp.cos(r.psi - xyp[2])))
-    return xyp.at[2].add(turn), 1.0 - r.flip_confidence, jnp.clip(2.0 * r.flip_confidence - 1.0, 0.0, 1.0)
+    r = S.search_heading(score, x0[2], sc.grid, sc.fine, float(np.deg2rad(sc.fine_step_deg)), flip_threshold)
+    turn = jnp.arctan2(jnp.sin(r.psi - x0[2]), jnp.cos(r.psi - x0[2]))
+    # straight-through: the turn (and the pivot's shift) is added as a constant
+    step = jax.lax.stop_gradient(S.turned(x0, turn, pivot) - x0)
+    return xyp + step, 1.0 - r.flip_confidence, jnp.clip(2.0 * r.flip_confidence - 1.0, 0.0, 1.0)
 
 
 def load_refiner(ckpt_dir: str | Path, model=None) -> Refiner:

@@ -38,6 +38,7 @@ import jaxlie
 import numpy as np
 
 from rhaml_jax import render
+from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine.net import config_to_dict, dataclass_from_dict, encode, encoder_init, luminance, named_config
 from rhaml_jax.refine.train import CropSource, _se3_params
 
@@ -66,10 +67,35 @@ class ScorerConfig:
     """test time: headings around the coarse peak"""
     fine_step_deg: float = 5.0
     """their spacing"""
+    offsets_deg: tuple[float, ...] = ()
+    """training hypotheses: headings relative to the drawn estimate (empty: `train_offsets_deg`'s grid neighbours and flips)"""
+    near_deg: float | None = None
+    """training estimates: heading drawn uniformly within this of the truth (None: half a grid step)..."""
+    far_prob: float = 0.25
+    """...or anywhere, this often"""
+    pivot: str = "origin"
+    """hypotheses turn about the robot frame's origin ("origin") or the centre of the model's box in
+    the floor plane ("centre": a robot turned front to back about it keeps its outline's place,
+    as a refined flipped estimate does)"""
+
+    def __post_init__(self):
+        if self.pivot not in ("origin", "centre"):
+            raise RhamlError(f"ScorerConfig.pivot: {self.pivot!r} is neither 'origin' nor 'centre'")
+        if self.grid < 2 or self.fine < 1:
+            raise RhamlError(f"ScorerConfig: grid must be >= 2 and fine >= 1, got {self.grid} and {self.fine}")
+        if not 0 <= self.far_prob <= 1:
+            raise RhamlError(f"ScorerConfig.far_prob must be in [0, 1], got {self.far_prob}")
 
 
 SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
-                  "scorer_micro": ScorerConfig(name="scorer_micro", crop=32, widths=(8, 16), hidden=16, grid=8, fine=3)}
+                  "scorer_micro": ScorerConfig(name="scorer_micro", crop=32, widths=(8, 16), hidden=16, grid=8, fine=3),
+                  # front or back only: the estimate and its flip about the box centre, at the fine refiners' margin
+                  "scorer_flip_cpu": ScorerConfig(name="scorer_flip_cpu", crop=96, widths=(32, 64, 96, 128, 128), margin=1.2,
+                                                  grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
+                                                  pivot="centre"),
+                  "scorer_flip_micro": ScorerConfig(name="scorer_flip_micro", crop=32, widths=(8, 16), hidden=16, grid=2,
+                                                    fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
+                                                    pivot="centre")}
 
 
 def get_scorer_config(name: str) -> ScorerConfig:
@@ -78,6 +104,22 @@ def get_scorer_config(name: str) -> ScorerConfig:
 
 def config_from_dict(d: dict) -> ScorerConfig:
     return dataclass_from_dict(ScorerConfig, d)
+
+
+def pivot_xy(cfg: ScorerConfig, vertices):
+    """(2,) the point in the robot's floor plane (model frame) that the hypotheses turn about;
+    `vertices` (N, 3), NumPy or JAX (the result is of the same kind)."""
+    c = 0.5 * (vertices.min(0) + vertices.max(0))[:2]
+    return c * 0 if cfg.pivot == "origin" else c
+
+
+def turned(xypsi, angle, pivot):
+    """The planar pose (3,) turned by `angle` about the model-frame point `pivot` (2,): the
+    heading changes by `angle`, the position so that the pivot stays where it was."""
+    x, y, psi = xypsi[0], xypsi[1], xypsi[2]
+    c0, s0, c1, s1 = jnp.cos(psi), jnp.sin(psi), jnp.cos(psi + angle), jnp.sin(psi + angle)
+    px, py = pivot[0], pivot[1]
+    return jnp.stack([x + c0 * px - s0 * py - (c1 * px - s1 * py), y + s0 * px + c0 * py - (s1 * px + c1 * py), psi + angle])
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["params"], meta_fields=["cfg"])
@@ -121,9 +163,11 @@ def score_input(mesh, cfg: ScorerConfig, obs, T_cam: jaxlie.SE3, K, box):
 
 
 def train_offsets_deg(cfg: ScorerConfig) -> np.ndarray:
-    """The training hypotheses' headings relative to a drawn one near the truth: the coarse
-    grid's neighbours (+-1, +-2 steps), the flip and its neighbours, so that the softmax
-    contrasts a turn to the left with one to the right and the front with the back."""
+    """The training hypotheses' headings relative to a drawn one near the truth: `cfg.offsets_deg`,
+    or by default the coarse grid's neighbours (+-1, +-2 steps), the flip and its neighbours, so
+    that the softmax contrasts a turn to the left with one to the right and the front with the back."""
+    if cfg.offsets_deg:
+        return np.asarray(cfg.offsets_deg, np.float64)
     step = 360.0 / cfg.grid
     return np.array([0.0, step, -step, 2 * step, -2 * step, 180.0, 180.0 + step, 180.0 - step])
 
@@ -139,8 +183,8 @@ class ScorerBatch(NamedTuple):
 class ScorerSource(CropSource):
     """batch(step) of B examples (a pure function of (seed, step)): a frame of a BOP set, an
     estimate at the true position plus N(0, pos_sigma_m) along and across the line of sight with a
-    heading drawn near the truth (uniform within half a grid step) or anywhere (one time in four),
-    its crop, and the hypotheses: that heading plus `train_offsets_deg`."""
+    heading drawn near the truth (uniform within `near_deg`) or anywhere (`far_prob`), its crop,
+    and the hypotheses: that estimate turned by `train_offsets_deg` about the config's pivot."""
 
     def initial(self, xypsi, rng):
         x, y, psi = xypsi
@@ -149,8 +193,8 @@ class ScorerSource(CropSource):
         along, across = rng.normal(0, s), rng.normal(0, s)
         r = max(r0 + along, 0.3)
         b = b + across / max(r0, 0.3)
-        half = np.pi / self.cfg.grid
-        dpsi = rng.uniform(-half, half) if rng.random() < 0.75 else rng.uniform(-np.pi, np.pi)
+        half = np.pi / self.cfg.grid if self.cfg.near_deg is None else np.deg2rad(self.cfg.near_deg)
+        dpsi = rng.uniform(-half, half) if rng.random() >= self.cfg.far_prob else rng.uniform(-np.pi, np.pi)
         return np.array([r * np.cos(b), r * np.sin(b), psi + dpsi])
 
     def example(self, index: int):
@@ -160,7 +204,9 @@ class ScorerSource(CropSource):
         Rz = np.zeros((len(offs), 4, 4))
         Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1] = c, -s, s, c
         Rz[:, 2, 2] = Rz[:, 3, 3] = 1
-        T_hyp = T_init[None] @ Rz  # the heading turned about the robot's own vertical axis
+        P = np.eye(4)
+        P[:2, 3] = pivot_xy(self.cfg, self.model.vertices)
+        T_hyp = T_init[None] @ P @ Rz @ np.linalg.inv(P)  # the heading turned about the pivot's vertical axis
         # heading error of each hypothesis: the rotation between hypothesis and truth about the robot's vertical
         R_rel = np.einsum("ji,hjk->hik", f.T_m2c[:3, :3], T_hyp[:, :3, :3])
         err = np.arctan2(R_rel[:, 1, 0], R_rel[:, 0, 0])
