@@ -28,6 +28,8 @@ def main() -> None:
     ap.add_argument("--settings", nargs="+", default=["4,1", "4,2"], help="n_iter,fine_iter[,mirror]")
     ap.add_argument("--fine-refiner", type=Path, action="append", default=[],
                     help="also time these fine refiners in every setting (default: the shipped one alone)")
+    ap.add_argument("--scorer", type=Path, help="also time every setting with this heading scorer's search (`--post-iter` after it)")
+    ap.add_argument("--post-iter", type=int, default=0, help="with --scorer: RefineConfig.post_iter")
     a = ap.parse_args()
     frames = [f for f in data.read_bop(a.data) if f.observed][: a.batch]
     if len(frames) < a.batch:
@@ -37,13 +39,16 @@ def main() -> None:
     images = jnp.asarray(np.stack([data.load_rgb(f.rgb) for f in frames]), jnp.float32) / 255
     Ks = jnp.asarray(np.stack([f.K for f in frames]), jnp.float32)
     init = jnp.asarray(np.stack([f.xypsi for f in frames]), jnp.float32) + jnp.array([0.05, 0.03, 0.1])
+    scorers = {"": None} if a.scorer is None else {"": None, " +scorer": refine.load_scorer(a.scorer, data.load_bop_model(a.data))}
     fns = {}
     for s in a.settings:
         n, f, *m = s.split(",")
-        rc = refine.RefineConfig(align=None, n_iter=int(n), fine_iter=int(f), mirror=m[0] if m else "none")
+        rc = refine.RefineConfig(align=None, n_iter=int(n), fine_iter=int(f), mirror=m[0] if m else "none", post_iter=a.post_iter)
         for name, fine in fines.items():
-            fns[s + name] = jax.jit(jax.vmap(lambda im, K, i, rc=rc, fine=fine: refine.refine(st.refiner, st.mesh, im, K, i, rc, fine=fine).xypsi))
-            jax.block_until_ready(fns[s + name](images, Ks, init))  # compile
+            for sname, sc in scorers.items():
+                fns[s + name + sname] = fn = jax.jit(jax.vmap(lambda im, K, i, rc=rc, fine=fine, sc=sc: refine.refine(
+                    st.refiner, st.mesh, im, K, i, rc, fine=fine, scorer=sc).xypsi))
+                jax.block_until_ready(fn(images, Ks, init))  # compile
     ts = {s: [] for s in fns}
     for _ in range(a.repeats):
         for s, fn in fns.items():

@@ -21,6 +21,12 @@ doubt); the best heading on that side, then `fine` headings spaced `fine_step_de
 peak refined by a parabola. The flip confidence is the coarse softmax's mass within 90 deg of
 the answer.
 
+The front/back scorer (`scorer_flip_cpu`) asks the one question the learned refiners cannot
+answer: two hypotheses only, the estimate and it turned by 180 deg about the centre of the model's
+box (`pivot` "centre"), where a refined estimate facing the wrong way keeps its outline; trained
+from estimates a few centimetres and degrees from the truth, as the coarse refiner leaves them; at
+test time it turns the heading where the other side's probability exceeds the threshold.
+
 Pure functions over a params pytree; the `Scorer` pytree (params + static cfg) passes through
 jit / vmap like `refine.Refiner`.
 """
