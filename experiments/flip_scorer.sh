@@ -5,6 +5,8 @@
 # mixed with session 40's sets (run flip_mono); each one's offline flip counts on the default's
 # stored validation runs (label ens_native; experiments/flip_scorer.py), where the threshold is
 # chosen. Every stage resumes (training with --resume; a finished set, export or sweep is kept).
+# Needs session 40's images (experiments/retrain_fine_more.sh) and the default's validation runs in EV
+# (LABEL=ens_native bash experiments/validate_networks.sh).
 #   bash experiments/flip_scorer.sh DATA_ROOT RUNS_ROOT [EV]
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s44}"; EV="${3:-/work/runs/validation}"
