@@ -29,7 +29,7 @@ sweep() {  # run: experiments/flip_scorer.py on the 14 validation sequences' sto
   [ -e "$RUNS/${1}_val.json" ] || "$PY" experiments/flip_scorer.py --scorer "$RUNS/export/$1" "${args[@]}" \
     --out "$RUNS/${1}_val.json" | tee "$RUNS/${1}_val.log"
 }
-train flip s40_refine_mix 10000 --lr 1e-3 --warmup 200 --seed 44     # 32 min here
+train flip s40_refine_mix 10000 --lr 1e-3 --warmup 200 --seed 44     # 43 min here, beside short evaluations
 sweep flip
 # robots in one paint (half of them; half of the rest repainted), 3,600 images, with session 40's two sets
 [ -f "$DATA/s44_flip_mono/.complete" ] || { "$PY" -m rhaml_jax.generate --out "$DATA/s44_flip_mono" --num 3600 --negatives 0 \
