@@ -22,21 +22,29 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhaml_jax import refine
-from rhaml_jax.data import read_bop
+from rhaml_jax import refine, render
+from rhaml_jax.data import load_bop_model, read_bop
 from rhaml_jax.metrics import flipped
 from rhaml_jax.sequence import group_scenes, load_scene
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98)
 
 
-def flip_probs(scorer, mesh, images, K, poses, h: float, batch: int = 16) -> np.ndarray:
-    """(N,) the scorer's probability that each pose (N, 3) faces the wrong way."""
-    go = jax.jit(jax.vmap(lambda im, k, x: refine.heading_search(scorer, mesh, im, k, x, h, 1.0)[1]))
+@jax.jit
+def _other_side(scorer, mesh, images, K, poses):
+    """(B,) the probability of the other side for a batch (the pose kept: threshold 1)."""
+    h = refine.RefineConfig.camera_height_m
+    return jax.vmap(lambda im, k, x: refine.heading_search(scorer, mesh, im, k, x, h, 1.0)[1])(images, K, poses)
+
+
+def flip_probs(scorer, mesh, images, K, poses, batch: int = 16) -> np.ndarray:
+    """(N,) the scorer's probability that each pose (N, 3) faces the wrong way (one compiled
+    function for every sequence: the scorer and mesh are arguments)."""
     out = []
     for i in range(0, len(images), batch):
         sl = slice(i, i + batch)
-        out.append(np.asarray(go(jnp.asarray(images[sl], jnp.float32) / 255.0, jnp.asarray(K[sl]), poses[sl])))
+        out.append(np.asarray(_other_side(scorer, mesh, jnp.asarray(images[sl], jnp.float32) / 255.0,
+                                          jnp.asarray(K[sl]), poses[sl])))
     return np.concatenate(out)
 
 
@@ -56,11 +64,13 @@ def main() -> None:
     ap.add_argument("--run", nargs=2, action="append", metavar=("EVAL_JSON", "DATA"), required=True)
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args()
-    cfg, p = refine.load_stage()
-    scorer = refine.load_scorer(a.scorer)
+    scorer = None
     results, total = {}, {}
     for ev, data in a.run:
         rows = json.loads(Path(ev).read_text())["frames"]
+        model = load_bop_model(data)
+        scorer = scorer or refine.load_scorer(a.scorer, model)  # refused for another robot
+        mesh = render.as_mesh(model)
         scenes = list(group_scenes(read_bop(data)).values())
         if len(scenes) != 1:
             raise SystemExit(f"{data}: one scene expected")
@@ -70,7 +80,7 @@ def main() -> None:
             raise SystemExit(f"{ev}: no frame was refined (run evaluate with the ir module)")
         poses = jnp.asarray([r["ir_est"] for r in rows], jnp.float32)[keep]
         gt = np.asarray(sc.gt)[keep]
-        prob = flip_probs(scorer, p.mesh, sc.seq.images[keep], sc.seq.K[keep], poses, cfg.camera_height_m)
+        prob = flip_probs(scorer, mesh, sc.seq.images[keep], sc.seq.K[keep], poses)
         was = np.asarray(flipped(np.asarray(poses[:, 2]), gt[:, 2]))
         c = counts(prob, was)
         results[ev] = {"frames": int(keep.sum()), "ir_flips": int(was.sum()), "counts": c, "prob": prob.tolist(),
