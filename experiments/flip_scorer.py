@@ -5,7 +5,11 @@ per-frame probability of the other side is stored, and for each threshold the fl
 would fix and make are counted against the run's own IR estimates.
 
     python experiments/flip_scorer.py --scorer RUN --run EV/ens_native_val_scen_s7_500_sine.json /work/data/val_scen_s7_500/sine \
-        [--run ...] --out OUT.json
+        [--run ...] [--mirror] --out OUT.json
+
+`--mirror` also reads every crop mirrored left-right (`RefineConfig.scorer_mirror`) and counts three
+readings side by side: the plain crop's ("plain"), the mean of the two reads' logits ("mirror"), and
+both reads past the threshold ("both").
 
 Offline: the refined pose the scorer reads here is IR's final one (the pipeline's search runs
 between the coarse and the fine iterations), so this chooses a threshold and tells whether the
@@ -15,6 +19,7 @@ scorer is worth a validation run; the validation run itself decides.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 from pathlib import Path
 
@@ -30,22 +35,32 @@ from rhaml_jax.sequence import group_scenes, load_scene
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98)
 
 
-@jax.jit
-def _other_side(scorer, mesh, images, K, poses):
+@functools.partial(jax.jit, static_argnames="mirror")
+def _other_side(scorer, mesh, images, K, poses, mirror=False):
     """(B,) the probability of the other side for a batch (the pose kept: threshold 1)."""
     h = refine.RefineConfig.camera_height_m
-    return jax.vmap(lambda im, k, x: refine.heading_search(scorer, mesh, im, k, x, h, 1.0)[1])(images, K, poses)
+    return jax.vmap(lambda im, k, x: refine.heading_search(scorer, mesh, im, k, x, h, 1.0, mirror)[1])(images, K, poses)
 
 
-def flip_probs(scorer, mesh, images, K, poses, batch: int = 16) -> np.ndarray:
+def flip_probs(scorer, mesh, images, K, poses, mirror: bool = False, batch: int = 16) -> np.ndarray:
     """(N,) the scorer's probability that each pose (N, 3) faces the wrong way (one compiled
     function for every sequence: the scorer and mesh are arguments)."""
     out = []
     for i in range(0, len(images), batch):
         sl = slice(i, i + batch)
         out.append(np.asarray(_other_side(scorer, mesh, jnp.asarray(images[sl], jnp.float32) / 255.0,
-                                          jnp.asarray(K[sl]), poses[sl])))
+                                          jnp.asarray(K[sl]), poses[sl], mirror)))
     return np.concatenate(out)
+
+
+def mirrored_alone(p_plain: np.ndarray, p_mean: np.ndarray) -> np.ndarray:
+    """The mirrored read's own probability, from the plain read's and the mean of the two reads'
+    logits (two hypotheses: p = sigmoid(logit difference), and the mean's difference is the mean)."""
+    def logit(p):
+        p = np.clip(p.astype(np.float64), 1e-9, 1 - 1e-9)  # guard: a saturated float32 probability
+        return np.log(p / (1 - p))
+
+    return 1 / (1 + np.exp(-(2 * logit(p_mean) - logit(p_plain))))
 
 
 def counts(p: np.ndarray, was_flipped: np.ndarray) -> dict:
@@ -62,10 +77,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scorer", type=Path, required=True)
     ap.add_argument("--run", nargs=2, action="append", metavar=("EVAL_JSON", "DATA"), required=True)
+    ap.add_argument("--mirror", action="store_true", help="also the mirrored reads (see the module docstring)")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args()
     scorer = None
     results, total = {}, {}
+    readings = ("plain", "mirror", "both") if a.mirror else ("plain",)
     for ev, data in a.run:
         rows = json.loads(Path(ev).read_text())["frames"]
         model = load_bop_model(data)
@@ -80,17 +97,22 @@ def main() -> None:
             raise SystemExit(f"{ev}: no frame was refined (run evaluate with the ir module)")
         poses = jnp.asarray([r["ir_est"] for r in rows], jnp.float32)[keep]
         gt = np.asarray(sc.gt)[keep]
-        prob = flip_probs(scorer, mesh, sc.seq.images[keep], sc.seq.K[keep], poses)
+        images, K = sc.seq.images[keep], sc.seq.K[keep]
+        prob = {"plain": flip_probs(scorer, mesh, images, K, poses)}
+        if a.mirror:
+            prob["mirror"] = flip_probs(scorer, mesh, images, K, poses, mirror=True)
+            prob["both"] = np.minimum(prob["plain"], mirrored_alone(prob["plain"], prob["mirror"]))
         was = np.asarray(flipped(np.asarray(poses[:, 2]), gt[:, 2]))
-        c = counts(prob, was)
-        results[ev] = {"frames": int(keep.sum()), "ir_flips": int(was.sum()), "counts": c, "prob": prob.tolist(),
-                       "ir_flipped": was.tolist()}
-        for t, v in c.items():
-            total[t] = tuple(x + y for x, y in zip(total.get(t, (0, 0, 0)), v))
-        print(f"{ev}: {keep.sum()} frames, IR flips {int(was.sum())}; median p {np.median(prob):.3f} "
-              f"(flipped frames: {np.median(prob[was]) if was.any() else float('nan'):.3f})")
-        print("  threshold: flips after (fixed, made) " + "; ".join(f"{t}: {v[0]} ({v[1]}, {v[2]})" for t, v in c.items()))
-    print("all runs: " + "; ".join(f"{t}: {v[0]} ({v[1]}, {v[2]})" for t, v in total.items()))
+        c = {k: counts(p, was) for k, p in prob.items()}
+        results[ev] = {"frames": int(keep.sum()), "ir_flips": int(was.sum()), "counts": c,
+                       "prob": {k: p.tolist() for k, p in prob.items()}, "ir_flipped": was.tolist()}
+        print(f"{ev}: {keep.sum()} frames, IR flips {int(was.sum())}")
+        for k in readings:
+            for t, v in c[k].items():
+                total.setdefault(k, {})[t] = tuple(x + y for x, y in zip(total.get(k, {}).get(t, (0, 0, 0)), v))
+            print(f"  {k}: threshold: flips after (fixed, made) " + "; ".join(f"{t}: {v[0]} ({v[1]}, {v[2]})" for t, v in c[k].items()))
+    for k in readings:
+        print(f"all runs, {k}: " + "; ".join(f"{t}: {v[0]} ({v[1]}, {v[2]})" for t, v in total[k].items()))
     a.out.write_text(json.dumps({"runs": results, "total": total}))
 
 

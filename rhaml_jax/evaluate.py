@@ -70,6 +70,9 @@ class Args:
     flip_threshold: float | None = None
     """with --scorer: the scorer's probability of the other side needed to turn the heading
     (`RefineConfig.flip_threshold`; None: its default)"""
+    scorer_mirror: bool = False
+    """with --scorer: it also reads its input mirrored left-right and averages the two reads
+    (`RefineConfig.scorer_mirror`); only for a left-right symmetric robot"""
     post_iter: int | None = None
     """with --scorer: learned iterations of the refiner after the heading search (`RefineConfig.post_iter`; None: its default)"""
     fine_refiner: tuple[Path, ...] | None = None
@@ -172,6 +175,9 @@ def _load(args: Args, modules):
                                                     mirror=args.refine_mirror)
         given = {k: v for k, v in (("fine_iter", args.fine_iter), ("flip_threshold", args.flip_threshold),
                                    ("post_iter", args.post_iter)) if v is not None}
+        if args.scorer_mirror:
+            iml.check_mirror_symmetric(robot, path, "--scorer-mirror")
+            given["scorer_mirror"] = True
         refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step, **given)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,

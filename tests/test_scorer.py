@@ -214,6 +214,33 @@ def test_the_flip_search_turns_about_the_box_centre(bop_set, monkeypatch):
     np.testing.assert_allclose(g, np.eye(3), atol=1e-6)
 
 
+def test_the_mirrored_read_drops_a_left_right_cue(bop_set, monkeypatch):
+    """`RefineConfig.scorer_mirror`: a score that reads a left-right difference of the crop is
+    cancelled by the mirrored read (the other side's probability becomes 1/2); a score that reads
+    the crop as a whole is the same with or without it."""
+    from rhaml_jax.refine import heading_search
+
+    cfg = S.get_scorer_config("scorer_flip_micro")
+    mesh = render.as_mesh(load_bop_model(bop_set))
+    sc = S.Scorer(S.init_params(cfg, jax.random.key(0)), cfg)
+    f = read_bop(bop_set, "train")[0]
+    img = jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255
+    img = img * jnp.linspace(0.2, 1.0, img.shape[1])[None, :, None]  # a left-right gradient: the cue can be read
+    x0 = jnp.asarray(f.xypsi, jnp.float32)
+    half = cfg.crop // 2
+
+    def p_other(reads, mirror):
+        monkeypatch.setattr(S, "apply", lambda c, p, x: jnp.stack([jnp.zeros(()), reads(x)]))
+        return float(heading_search(sc, mesh, img, f.K, x0, float(f.camera_height_m), 1.0, mirror)[1])
+
+    left_right = lambda x: 20.0 * (x[0, :, :half, 0].mean() - x[0, :, half:, 0].mean())  # noqa: E731
+    whole = lambda x: 5.0 * x[0, :, :, 0].mean()  # noqa: E731
+    assert abs(p_other(left_right, False) - 0.5) > 0.05  # the plain read sees the cue
+    assert p_other(left_right, True) == pytest.approx(0.5, abs=1e-5)
+    assert p_other(whole, True) == pytest.approx(p_other(whole, False), abs=1e-5)
+    assert abs(p_other(whole, False) - 0.5) > 0.05
+
+
 def test_a_threshold_outside_zero_to_one_is_refused():
     for bad in (-0.1, 1.5):
         with pytest.raises(RhamlError, match="flip_threshold"):

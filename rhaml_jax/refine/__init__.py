@@ -69,6 +69,10 @@ class RefineConfig:
     """learned iterations (None: the refiner's config, 4)"""
     flip_threshold: float = 0.5
     """the scorer turns the heading by about 180 deg only if its softmax mass on the other side exceeds this"""
+    scorer_mirror: bool = False
+    """the scorer also reads its input mirrored left-right and its logits are averaged with the
+    plain read's (test-time mirroring, as `mirror` for the refiners): a side that only one of the
+    two reads prefers gets less than the threshold. Only for left-right symmetric robots"""
     post_iter: int = 1
     """learned iterations after the scorer's heading search (the position, re-read at the new heading)"""
     fine_iter: int = 2
@@ -200,7 +204,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         if cfg.max_final_step is not None and n_iter >= 2:
             converged = _final_step(iterates[-2], iterates[-1]) <= cfg.max_final_step
         if scorer is not None:
-            xyp, flip_prob, conf = _heading_search(scorer, mesh, corners, image, K, xyp, h, cfg.flip_threshold)
+            xyp, flip_prob, conf = _heading_search(scorer, mesh, corners, image, K, xyp, h, cfg.flip_threshold,
+                                                   cfg.scorer_mirror)
             iterates.append(xyp)
             if cfg.post_iter:
                 xyp, roll_pitch = learned(xyp, cfg.post_iter)
@@ -337,18 +342,18 @@ def _multi_view(net: Refiner | tuple[Refiner, ...], mesh, corners, image, K, h, 
     return _circular_mean(p), rp.mean(0), [_circular_mean(i) for i in its]
 
 
-def heading_search(scorer: Scorer, mesh, image, K, xypsi, h: float, flip_threshold: float):
+def heading_search(scorer: Scorer, mesh, image, K, xypsi, h: float, flip_threshold: float, mirror: bool = False):
     """The scorer's heading search alone at the planar pose xypsi (3,) in `image` (H, W, 3) in
     [0, 1]: (planar pose, probability that the answer faces the wrong way, flip confidence); `h`
     the camera height (`RefineConfig.camera_height_m`). With `flip_threshold` 1 the pose is kept
-    and the probability is that of the other side."""
-    return _heading_search(scorer, mesh, _corners(mesh), image, K, xypsi, h, flip_threshold)
+    and the probability is that of the other side. `mirror`: `RefineConfig.scorer_mirror`."""
+    return _heading_search(scorer, mesh, _corners(mesh), image, K, xypsi, h, flip_threshold, mirror)
 
 
-def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_threshold: float):
+def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_threshold: float, mirror: bool = False):
     """The scorer's heading at the position of xyp (3,): (planar pose, flip probability, flip
     confidence). Straight-through in the heading (d result / d xyp = identity): the search is an
-    argmax."""
+    argmax. `mirror`: the logits are the mean of the input's and its left-right mirror image's."""
     from rhaml_jax.refine import scorer as S
 
     sc = scorer.cfg
@@ -358,8 +363,14 @@ def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_thresh
     pivot = jnp.asarray(S.pivot_xy(sc, corners), xyp.dtype)  # the box's corners span the model's box
 
     def score(headings):
-        T = jax.vmap(lambda p: _T_cam(S.turned(x0, p - x0[2], pivot), h).wxyz_xyz)(headings)
-        return S.apply(sc, scorer.params, S.score_input(mesh, sc, obs, jaxlie.SE3(T), K, box))
+        T = jaxlie.SE3(jax.vmap(lambda p: _T_cam(S.turned(x0, p - x0[2], pivot), h).wxyz_xyz)(headings))
+        logits = S.apply(sc, scorer.params, S.score_input(mesh, sc, obs, T, K, box))
+        if not mirror:
+            return logits
+        # the mirrored scene, lit from the mirrored side, as the refiners' mirrored reads (`_iterate`)
+        lx, ly, lz = render.DEFAULT_LIGHT
+        xm = S.score_input(mesh, sc, obs, T, K, box, light_dir=(-lx, ly, lz))[:, :, ::-1]  # (N, S, S, 3), width flipped
+        return 0.5 * (logits + S.apply(sc, scorer.params, xm))
 
     r = S.search_heading(score, x0[2], sc.grid, sc.fine, float(np.deg2rad(sc.fine_step_deg)), flip_threshold)
     turn = jnp.arctan2(jnp.sin(r.psi - x0[2]), jnp.cos(r.psi - x0[2]))

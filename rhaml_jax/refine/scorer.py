@@ -154,12 +154,12 @@ def apply(cfg: ScorerConfig, params: dict, x):
     return (z @ params["out"]["w"] + params["out"]["b"])[:, 0].reshape(lead)
 
 
-def score_input(mesh, cfg: ScorerConfig, obs, T_cam: jaxlie.SE3, K, box):
+def score_input(mesh, cfg: ScorerConfig, obs, T_cam: jaxlie.SE3, K, box, light_dir=render.DEFAULT_LIGHT):
     """(H, S, S, 3) scorer input for H hypotheses T_cam (H,) of one crop: obs (S, S, 3) RGB in
     [0, 1], K (3, 3), box (4,). The render is an input (no gradient), as the refiner's."""
     S = cfg.crop
     H = T_cam.wxyz_xyz.shape[0]
-    out = render.render(mesh, T_cam, K, S, S, box=box)  # one K and box for all H hypotheses
+    out = render.render(mesh, T_cam, K, S, S, box=box, light_dir=light_dir)  # one K and box for all H hypotheses
     rend = jax.lax.stop_gradient(jnp.stack([luminance(out.rgb), out.mask.astype(obs.dtype)], -1))
     o = jnp.broadcast_to(luminance(obs)[None, ..., None], (H, S, S, 1))
     return jnp.concatenate([o, rend], -1)
