@@ -108,6 +108,35 @@ def test_examples_are_pure_and_their_errors_as_constructed(bop_set):
     np.testing.assert_allclose(batch.T_hyp[..., 4:], batch.T_hyp[:, :1, 4:].repeat(H, 1), atol=1e-5)
 
 
+def test_repainted_renders_keep_the_parts_and_the_rest_of_the_example(bop_set):
+    """`ScorerConfig.paint_prob`: at 1 every example renders a repainted robot (each colour group of
+    the model one new colour, in [0, 1]), and the loss reads it; at 0 the model's own colours; the
+    rest of an example is the same either way (the paint has its own random stream)."""
+    from rhaml_jax.data._appearance import color_groups
+
+    cfg = S.get_scorer_config("scorer_flip_micro")
+    plain = S.ScorerSource(bop_set, "train", cfg, 4, seed=2)(0)
+    painted = S.ScorerSource(bop_set, "train", dataclasses.replace(cfg, paint_prob=1.0), 4, seed=2)(0)
+    model = load_bop_model(bop_set)
+    own = np.asarray(model.face_colors, np.float32)
+    np.testing.assert_array_equal(plain.paint, np.broadcast_to(own, plain.paint.shape))
+    for field in ("obs", "box", "K", "T_hyp", "err"):
+        np.testing.assert_array_equal(getattr(plain, field), getattr(painted, field))
+    _, group = color_groups(own)
+    for p in painted.paint:
+        assert np.abs(p - own).max() > 0.05 and p.min() >= 0 and p.max() <= 1
+        for g in np.unique(group):
+            assert np.ptp(p[group == g], axis=0).max() == 0  # a part is repainted whole
+    mesh = render.as_mesh(model)
+    params = S.init_params(cfg, jax.random.key(1))
+    params = jax.tree.map(lambda a: a + 0.1 * jax.random.normal(jax.random.key(2), a.shape), params)  # not the zero head
+    la, _ = S.scorer_loss(cfg, mesh, params, tuple(jnp.asarray(x) for x in plain))
+    lb, _ = S.scorer_loss(cfg, mesh, params, tuple(jnp.asarray(x) for x in painted))
+    assert abs(float(la) - float(lb)) > 1e-6
+    with pytest.raises(RhamlError, match="paint_prob"):
+        dataclasses.replace(cfg, paint_prob=1.5)
+
+
 def test_the_network_learns_to_pick_the_true_heading(bop_set):
     """Overfit two crops: the scorer must come to rate the hypothesis nearest the truth best
     (a scorer that cannot tell renders apart stays at top-1 = chance and loss log H)."""

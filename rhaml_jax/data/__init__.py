@@ -38,10 +38,11 @@ __all__ += ["ImageCache", "AugmentConfig", "augment", "Batch", "FromDisk", "OnTh
             "network_image"]
 
 from rhaml_jax.data._appearance import (OOD_VALIDATION, AppearanceConfig, HeldoutConfig, Look, check_apart,  # noqa: E402
-                                        check_heldout, deferred_checks, sample_heldout_look, sample_look)
+                                        check_heldout, deferred_checks, sample_heldout_look, sample_look,
+                                        sample_paint)
 from rhaml_jax.data._writer import write_heldout  # noqa: E402
 
-__all__ += ["OOD_VALIDATION", "AppearanceConfig", "HeldoutConfig", "Look", "check_apart", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "write_heldout"]
+__all__ += ["OOD_VALIDATION", "AppearanceConfig", "HeldoutConfig", "Look", "check_apart", "check_heldout", "deferred_checks", "sample_heldout_look", "sample_look", "sample_paint", "write_heldout"]
 
 from rhaml_jax.data._writer import write_sequence  # noqa: E402  (scenes given by their poses, e.g. map fusion's)
 

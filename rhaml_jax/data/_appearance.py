@@ -510,6 +510,19 @@ def _monochrome_hsv(rng, n: int, cfg: AppearanceConfig) -> np.ndarray:
     return np.array(out, np.float64).reshape(-1, 3)
 
 
+def sample_paint(rng: np.random.Generator, base_colors: np.ndarray, cfg: AppearanceConfig | None = None) -> np.ndarray:
+    """(G, 3) RGB in [0, 1]: the model's colour groups `base_colors` (G, 3) repainted as training
+    repaints the robot, half the time in one paint (`monochrome_prob`'s draw), else each part grey
+    or recoloured (`repaint_prob`'s); hues outside the held-out band as every training draw. For
+    renders that must not carry the robot's own paint (the scorer's `paint_prob`)."""
+    cfg = cfg or AppearanceConfig()
+    if rng.random() < 0.5:
+        hsv = _monochrome_hsv(rng, len(base_colors), cfg)
+    else:
+        hsv = _part_hsv(rng, rgb_to_hsv(base_colors), cfg, repaint=True)
+    return hsv_to_rgb(hsv)
+
+
 def surroundings(mask: np.ndarray) -> tuple[tuple[slice, slice], np.ndarray]:
     """The robot's surroundings in an image: (box, around), box the slices of the mask's bounding
     box grown by half its size on each side (clipped to the image), around the (h, w) boolean of

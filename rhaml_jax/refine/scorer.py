@@ -83,14 +83,19 @@ class ScorerConfig:
     """hypotheses turn about the robot frame's origin ("origin") or the centre of the model's box in
     the floor plane ("centre": a robot turned front to back about it keeps its outline's place,
     as a refined flipped estimate does)"""
+    paint_prob: float = 0.0
+    """training: the render's parts repainted this often (`data.sample_paint`: half in one paint),
+    so that the scores do not rest on the model's paint matching the robot's: a user's CAD colours
+    are not the robot's, and a robot in one paint is rendered in one paint"""
 
     def __post_init__(self):
         if self.pivot not in ("origin", "centre"):
             raise RhamlError(f"ScorerConfig.pivot: {self.pivot!r} is neither 'origin' nor 'centre'")
         if self.grid < 2 or self.fine < 1:
             raise RhamlError(f"ScorerConfig: grid must be >= 2 and fine >= 1, got {self.grid} and {self.fine}")
-        if not 0 <= self.far_prob <= 1:
-            raise RhamlError(f"ScorerConfig.far_prob must be in [0, 1], got {self.far_prob}")
+        for name in ("far_prob", "paint_prob"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise RhamlError(f"ScorerConfig.{name} must be in [0, 1], got {getattr(self, name)}")
 
 
 SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
@@ -99,6 +104,10 @@ SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
                   "scorer_flip_cpu": ScorerConfig(name="scorer_flip_cpu", crop=96, widths=(32, 64, 96, 128, 128), margin=1.2,
                                                   grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
                                                   pivot="centre"),
+                  # the same network, its renders repainted half the time in training
+                  "scorer_flip_paint_cpu": ScorerConfig(name="scorer_flip_paint_cpu", crop=96, widths=(32, 64, 96, 128, 128),
+                                                        margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
+                                                        far_prob=0.0, pivot="centre", paint_prob=0.5),
                   "scorer_flip_micro": ScorerConfig(name="scorer_flip_micro", crop=32, widths=(8, 16), hidden=16, grid=2,
                                                     fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
                                                     pivot="centre")}
@@ -184,13 +193,30 @@ class ScorerBatch(NamedTuple):
     K: np.ndarray  # (B, 3, 3)
     T_hyp: np.ndarray  # (B, H, 7) T_cam_model wxyz_xyz of each hypothesis
     err: np.ndarray  # (B, H) float32 heading error of each hypothesis (rad, wrapped)
+    paint: np.ndarray  # (B, F, 3) float32 the render's face colours (the model's, or repainted: paint_prob)
 
 
 class ScorerSource(CropSource):
     """batch(step) of B examples (a pure function of (seed, step)): a frame of a BOP set, an
     estimate at the true position plus N(0, pos_sigma_m) along and across the line of sight with a
     heading drawn near the truth (uniform within `near_deg`) or anywhere (`far_prob`), its crop,
-    and the hypotheses: that estimate turned by `train_offsets_deg` about the config's pivot."""
+    and the hypotheses: that estimate turned by `train_offsets_deg` about the config's pivot; the
+    render's face colours, repainted with `paint_prob` (drawn from a stream of their own: a config
+    without repainting draws the examples it drew before)."""
+
+    _PAINT_STREAM = 7
+
+    def paint(self, index: int) -> np.ndarray:
+        """(F, 3) float32 the face colours example `index` renders with."""
+        from rhaml_jax.data import sample_paint
+        from rhaml_jax.data._appearance import color_groups
+
+        colours = np.asarray(self.model.face_colors, np.float32)
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, index, self._PAINT_STREAM]))
+        if not self.cfg.paint_prob or rng.random() >= self.cfg.paint_prob:
+            return colours
+        groups, inverse = color_groups(colours)
+        return sample_paint(rng, groups)[inverse].astype(np.float32)
 
     def initial(self, xypsi, rng):
         x, y, psi = xypsi
@@ -217,19 +243,20 @@ class ScorerSource(CropSource):
         R_rel = np.einsum("ji,hjk->hik", f.T_m2c[:3, :3], T_hyp[:, :3, :3])
         err = np.arctan2(R_rel[:, 1, 0], R_rel[:, 0, 0])
         return (obs, box.astype(np.float32), f.K.astype(np.float32), np.stack([_se3_params(T) for T in T_hyp]),
-                err.astype(np.float32))
+                err.astype(np.float32), self.paint(index))
 
     def __call__(self, step: int) -> ScorerBatch:
         ex = [self.example(step * self.batch + j) for j in range(self.batch)]
-        return ScorerBatch(*(np.stack([e[k] for e in ex]) for k in range(5)))
+        return ScorerBatch(*(np.stack([e[k] for e in ex]) for k in range(len(ScorerBatch._fields))))
 
 
 def scorer_loss(cfg: ScorerConfig, mesh, params, b):
     """Softmax cross-entropy over each crop's hypotheses against soft targets, and metrics:
     `top1` (the best-scored hypothesis is the one nearest the truth), `flip` (it faces the other
     way, |error| > 90 deg), `err_deg` (its |heading error|)."""
-    obs, box, K, T_hyp, err = b
-    x = jax.vmap(lambda o, T, k, bx: score_input(mesh, cfg, o, jaxlie.SE3(T), k, bx))(obs, T_hyp, K, box)
+    obs, box, K, T_hyp, err, paint = b
+    x = jax.vmap(lambda o, T, k, bx, c: score_input(mesh._replace(face_colors=c), cfg, o, jaxlie.SE3(T), k, bx))(
+        obs, T_hyp, K, box, paint)
     logits = apply(cfg, params, x)  # (B, H)
     sig = np.deg2rad(cfg.sigma_deg)
     target = jax.nn.softmax(-0.5 * (err / sig) ** 2, -1)
@@ -241,12 +268,12 @@ def scorer_loss(cfg: ScorerConfig, mesh, params, b):
     return parts["loss"], parts
 
 
-def check_scorer_batch(cfg: ScorerConfig, b, size: int, where: str) -> None:
+def check_scorer_batch(cfg: ScorerConfig, b, size: int, where: str, faces: int) -> None:
     from rhaml_jax.refine._task import check_fields
 
     S, H = cfg.crop, len(train_offsets_deg(cfg))
     check_fields(b, {"obs": (size, S, S, 3), "box": (size, 4), "K": (size, 3, 3), "T_hyp": (size, H, 7),
-                     "err": (size, H)}, "ScorerBatch", where)
+                     "err": (size, H), "paint": (size, faces, 3)}, "ScorerBatch", where)
 
 
 def scorer_task(cfg: ScorerConfig, tc, model, val_source=None, num_devices=None):
@@ -257,8 +284,8 @@ def scorer_task(cfg: ScorerConfig, tc, model, val_source=None, num_devices=None)
     mesh = render.as_mesh(model)
     return network_task("scorer", cfg, tc, model, init_params=init_params, config_to_dict=config_to_dict,
                         config_from_dict=config_from_dict,
-                        loss=lambda params, *b: scorer_loss(cfg, mesh, params, b), n_fields=5,
-                        check_batch=lambda b, size, where: check_scorer_batch(cfg, b, size, where),
+                        loss=lambda params, *b: scorer_loss(cfg, mesh, params, b), n_fields=len(ScorerBatch._fields),
+                        check_batch=lambda b, size, where: check_scorer_batch(cfg, b, size, where, len(mesh.faces)),
                         val_source=val_source, num_devices=num_devices)
 
 
