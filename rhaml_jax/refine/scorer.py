@@ -104,10 +104,12 @@ SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
                   "scorer_flip_cpu": ScorerConfig(name="scorer_flip_cpu", crop=96, widths=(32, 64, 96, 128, 128), margin=1.2,
                                                   grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
                                                   pivot="centre"),
-                  # the same network, its renders repainted half the time in training
-                  "scorer_flip_paint_cpu": ScorerConfig(name="scorer_flip_paint_cpu", crop=96, widths=(32, 64, 96, 128, 128),
-                                                        margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
-                                                        far_prob=0.0, pivot="centre", paint_prob=0.5),
+                  # the same network for the estimates IR leaves on unfamiliar looks (half of them anywhere: often
+                  # tens of degrees off, where the side nearer the truth is the answer and about 90 deg off there
+                  # is none, so a wide target), its renders repainted half the time
+                  "scorer_flip_wide_cpu": ScorerConfig(name="scorer_flip_wide_cpu", crop=96, widths=(32, 64, 96, 128, 128),
+                                                       margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
+                                                       far_prob=0.5, sigma_deg=30.0, pivot="centre", paint_prob=0.5),
                   "scorer_flip_micro": ScorerConfig(name="scorer_flip_micro", crop=32, widths=(8, 16), hidden=16, grid=2,
                                                     fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
                                                     pivot="centre")}
