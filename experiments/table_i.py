@@ -37,8 +37,8 @@ PAPER = {"frontnet": ((30.3, 36.7), (50.9, 75.8), (64.9, 53.2), 2.21, 0.33, 0.07
 
 def refiner_size() -> dict:
     """The default IR cascade as the pipeline loads it (`refine.load_stage()`: the refiner for
-    `RefineConfig` n_iter iterations, then each fine refiner of the ensemble for fine_iter; a
-    mirrored iteration reads its crop twice): parameters (leaves of every params pytree) and MACs
+    `RefineConfig` n_iter iterations, the front/back scorer once per hypothesis, then each fine
+    refiner of the ensemble for fine_iter; a mirrored iteration reads its crop twice): parameters (leaves of every params pytree) and MACs
     per frame at batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and matrix
     products)."""
     import math
@@ -61,6 +61,17 @@ def refiner_size() -> dict:
         out["params"] += params
         out["macs"] += n * macs
         out["networks"].append(f"{r.cfg.name} x {n} ({params} params, {macs} MACs each)")
+    if stage.scorer is not None:  # one pass per hypothesis, each read mirrored too with scorer_mirror
+        from rhaml_jax.refine import scorer as S
+
+        sc = stage.scorer
+        n = len(S.train_offsets_deg(sc.cfg)) * (2 if cfg.scorer_mirror else 1)
+        x = jax.ShapeDtypeStruct((1, sc.cfg.crop, sc.cfg.crop, 3), jnp.float32)  # crop + render + mask
+        macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x: S.apply(sc.cfg, p, x))(sc.params, x).jaxpr))
+        params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(sc.params)))
+        out["params"] += params
+        out["macs"] += n * macs
+        out["networks"].append(f"{sc.cfg.name} x {n} ({params} params, {macs} MACs each)")
     return out
 
 

@@ -66,7 +66,8 @@ class Args:
     none is shipped, see BENCHMARKS.md "Refinement")"""
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
-    iterations, the best of rendered heading hypotheses, flips included; default: none)"""
+    iterations, the best of rendered heading hypotheses, flips included; "none": without; default: the
+    shipped `refine.DEFAULT_SCORER` at `refine.DEFAULT_FLIP_THRESHOLD` when --refiner is not given, else none)"""
     flip_threshold: float | None = None
     """with --scorer: the scorer's probability of the other side needed to turn the heading
     (`RefineConfig.flip_threshold`; None: its default)"""

@@ -130,15 +130,20 @@ def test_shipped_refiner_size_and_robot(name):
 
 
 def test_the_default_ir_stage_is_the_shipped_cascade():
-    """`refine.load_stage()`: the shipped refiner, then the shipped fine ones (an ensemble); "none"
-    leaves them out, and another refiner runs without them unless one is named."""
-    from rhaml_jax.refine import load_stage
+    """`refine.load_stage()`: the shipped refiner, its front/back scorer at its threshold with no
+    coarse iteration after it, then the shipped fine ones (an ensemble); "none" leaves a scorer or
+    the fine ones out, and another refiner runs without them unless they are named."""
+    from rhaml_jax.refine import DEFAULT_FLIP_THRESHOLD, RefineConfig, load_stage
 
-    _, stage = load_stage()
+    cfg, stage = load_stage()
     assert stage.refiner.cfg.starts == "coarse"
     assert [m.cfg.name for m in stage.fine] == ["refiner_fine_cpu", "refiner_fine_native_cpu"]
+    assert stage.scorer.cfg.name == "scorer_flip_wide_cpu"
+    assert (cfg.flip_threshold, cfg.post_iter) == (DEFAULT_FLIP_THRESHOLD, 0) != (RefineConfig.flip_threshold, RefineConfig.post_iter)
     assert load_stage(fine="none")[1].fine is None
-    assert load_stage(shipped_checkpoint("refiner_fit180_cpu"))[1].fine is None
+    assert load_stage(scorer="none")[1].scorer is None
+    other = load_stage(shipped_checkpoint("refiner_fit180_cpu"))
+    assert other[1].fine is None and other[1].scorer is None and other[0].flip_threshold == RefineConfig.flip_threshold
     named = load_stage(shipped_checkpoint("refiner_fit180_cpu"), fine=shipped_checkpoint(DEFAULT_FINE_REFINERS[0]))[1]
     assert named.fine.cfg.starts == "fine"
 

@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -421,6 +421,18 @@ position 2 % over the validation looks; mirroring the coarse iterations too gain
 (BENCHMARKS.md, "What one image tells about the range, and mirrored crops")"""
 
 
+DEFAULT_SCORER = "scorer_flip_wide_cpu"
+"""the shipped front/back scorer that `load_stage` runs after the default refiner's coarse
+iterations (`heading_search`), at `DEFAULT_FLIP_THRESHOLD` and no coarse iteration after it
+(`RefineConfig.post_iter` 0): trained from estimates near the truth and anywhere, its renders
+repainted (`ScorerConfig.paint_prob`). Chosen on validation (BENCHMARKS.md, "A front/back scorer
+for the estimates IR leaves"); session 44's `scorer_flip_cpu`, trained within 6 deg, ships beside it"""
+
+
+DEFAULT_FLIP_THRESHOLD = 0.8
+"""`RefineConfig.flip_threshold` that `load_stage` sets with `DEFAULT_SCORER` (chosen on the validation looks' offline sweep)"""
+
+
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -446,8 +458,9 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     and `PipelineParams.refiner`. The robot is the BOP data set's model (`models/obj_000001.ply`)
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
-    `DEFAULT_REFINER`, then the shipped `DEFAULT_FINE_REFINERS` (`fine` "none": without them; given
-    another refiner, a fine one runs only if `fine` names one); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
+    `DEFAULT_REFINER`, with the shipped `DEFAULT_SCORER` after its coarse iterations and then the
+    shipped `DEFAULT_FINE_REFINERS` (`scorer` or `fine` "none": without them; given another refiner,
+    a scorer or fine refiner runs only if named); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder, or several: an ensemble) by that refiner's iterations (a cascade). `mirror`:
     `RefineConfig.mirror` (None: `DEFAULT_MIRROR` for a left-right symmetric robot, "none" for
@@ -460,13 +473,17 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     check = robot if check_robot else None
     refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
-    sc = None if scorer is None else load_scorer(scorer, check)
+    cfg = RefineConfig(mirror=_mirror_setting(robot, mirror))
+    if scorer is None and ckpt_dir is None:
+        scorer = shipped_checkpoint(DEFAULT_SCORER)
+        cfg = dataclasses.replace(cfg, flip_threshold=DEFAULT_FLIP_THRESHOLD, post_iter=0)
+    sc = None if scorer is None or str(scorer) == "none" else load_scorer(scorer, check)
     if fine is None and ckpt_dir is None:
         fine = tuple(shipped_checkpoint(n) for n in DEFAULT_FINE_REFINERS)
     fines = [] if fine is None else [fine] if isinstance(fine, (str, Path)) else list(fine)
     fines = [f for f in fines if str(f) != "none"]
     fn = check_ensemble(tuple(load_refiner(f, check) for f in fines)) if fines else None
-    return RefineConfig(mirror=_mirror_setting(robot, mirror)), StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
+    return cfg, StageParams(refiner, render.as_mesh(robot), seg, sc, fn)
 
 
 def _mirror_setting(robot, mirror: str | None) -> str:
