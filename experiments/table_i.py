@@ -41,37 +41,34 @@ def refiner_size() -> dict:
     refiner of the ensemble for fine_iter; a mirrored iteration reads its crop twice): parameters (leaves of every params pytree) and MACs
     per frame at batch 1, counted as amlnet/count.py counts (the jaxpr's convolutions and matrix
     products)."""
+    import functools
     import math
 
     import jax
     import jax.numpy as jnp
 
     from rhaml_jax.amlnet.count import jaxpr_macs
-    from rhaml_jax.refine import load_stage, net
+    from rhaml_jax.refine import load_stage, net, scorer
 
     cfg, stage = load_stage()
     out = {"params": 0, "macs": 0, "networks": []}
     fines = stage.fine if isinstance(stage.fine, tuple) else (stage.fine,)  # an ensemble: each member every iteration
     reads = {"none": (1, 1), "fine": (1, 2), "all": (2, 2)}[cfg.mirror]  # a mirrored iteration reads its crop twice
     coarse = (stage.refiner.cfg.n_iter if cfg.n_iter is None else cfg.n_iter) * reads[0]
-    for r, n in ((stage.refiner, coarse), *((f, cfg.fine_iter * reads[1]) for f in fines)):
-        x = jax.ShapeDtypeStruct((1, r.cfg.crop, r.cfg.crop, 7), jnp.float32)  # crop + render + mask channels
-        macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x, r=r: net.apply(r.cfg, p, x))(r.params, x).jaxpr))
-        params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(r.params)))
+    # (name, network, its params, its input, passes per frame)
+    nets = [(r.cfg.name, functools.partial(net.apply, r.cfg), r.params, (1, r.cfg.crop, r.cfg.crop, 7), n)  # crop + render + mask
+            for r, n in ((stage.refiner, coarse), *((f, cfg.fine_iter * reads[1]) for f in fines))]
+    if stage.scorer is not None:  # a pass per heading searched (coarse grid, then the fine one), twice if mirrored
+        sc = stage.scorer.cfg
+        n = (sc.grid + (sc.fine if sc.fine > 1 else 0)) * (2 if cfg.scorer_mirror else 1)
+        nets.append((sc.name, functools.partial(scorer.apply, sc), stage.scorer.params, (1, sc.crop, sc.crop, 3), n))
+    for name, apply, p, shape, n in nets:
+        x = jax.ShapeDtypeStruct(shape, jnp.float32)
+        macs = int(jaxpr_macs(jax.make_jaxpr(apply)(p, x).jaxpr))
+        params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(p)))
         out["params"] += params
         out["macs"] += n * macs
-        out["networks"].append(f"{r.cfg.name} x {n} ({params} params, {macs} MACs each)")
-    if stage.scorer is not None:  # one pass per hypothesis, each read mirrored too with scorer_mirror
-        from rhaml_jax.refine import scorer as S
-
-        sc = stage.scorer
-        n = len(S.train_offsets_deg(sc.cfg)) * (2 if cfg.scorer_mirror else 1)
-        x = jax.ShapeDtypeStruct((1, sc.cfg.crop, sc.cfg.crop, 3), jnp.float32)  # crop + render + mask
-        macs = int(jaxpr_macs(jax.make_jaxpr(lambda p, x: S.apply(sc.cfg, p, x))(sc.params, x).jaxpr))
-        params = int(sum(math.prod(v.shape) for v in jax.tree.leaves(sc.params)))
-        out["params"] += params
-        out["macs"] += n * macs
-        out["networks"].append(f"{sc.cfg.name} x {n} ({params} params, {macs} MACs each)")
+        out["networks"].append(f"{name} x {n} ({params} params, {macs} MACs each)")
     return out
 
 
