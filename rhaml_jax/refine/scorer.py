@@ -208,16 +208,22 @@ class ScorerSource(CropSource):
 
     _PAINT_STREAM = 7
 
-    def paint(self, index: int) -> np.ndarray:
-        """(F, 3) float32 the face colours example `index` renders with."""
-        from rhaml_jax.data import sample_paint
+    @functools.cached_property
+    def _parts(self):
+        """The model's face colours (F, 3) float32 and their colour groups (groups (G, 3), group of each face (F,))."""
         from rhaml_jax.data._appearance import color_groups
 
         colours = np.asarray(self.model.face_colors, np.float32)
+        return colours, *color_groups(colours)
+
+    def paint(self, index: int) -> np.ndarray:
+        """(F, 3) float32 the face colours example `index` renders with."""
+        from rhaml_jax.data import sample_paint
+
+        colours, groups, inverse = self._parts
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, index, self._PAINT_STREAM]))
         if not self.cfg.paint_prob or rng.random() >= self.cfg.paint_prob:
             return colours
-        groups, inverse = color_groups(colours)
         return sample_paint(rng, groups)[inverse].astype(np.float32)
 
     def initial(self, xypsi, rng):
