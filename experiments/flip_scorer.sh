@@ -11,33 +11,16 @@
 set -euo pipefail
 DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s44}"; EV="${3:-/work/runs/validation}"
 PY="${PYTHON:-python}"
-train() {  # run data steps [train args...]: train the scorer (resumed), then export it to $RUNS/export/run
-  local run=$1 set=$2 steps=$3
-  shift 3
-  grep -qs "\"step\": $steps," "$RUNS/$run/metrics.jsonl" || \
-    "$PY" -m rhaml_jax.train --stage scorer --config scorer_flip_cpu --data "$DATA/$set" --out "$RUNS/$run" --steps "$steps" \
-      --batch 16 --val-every 1000 --val-batches 8 --ckpt-every 250 --log-every 50 --no-progress "$@" \
-      $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
-  [ -e "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine.scorer import export_scorer as e; e('$RUNS/$run', '$RUNS/export/$run')"
-}
-sweep() {  # run: experiments/flip_scorer.py on the 14 validation sequences' stored default runs
-  local d sets args=()
-  sets="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine
-    val_ood/circle val_ood/sine val_ood_s2/circle val_ood_s2/sine"
-  for c in purple orange grey; do for s in circle sine; do sets="$sets val_mono/${s}_$c"; done; done
-  for d in $sets; do args+=(--run "$EV/ens_native_$(echo "$d" | tr / _).json" "$DATA/$d"); done
-  [ -e "$RUNS/${1}_val.json" ] || "$PY" experiments/flip_scorer.py --scorer "$RUNS/export/$1" "${args[@]}" \
-    --out "$RUNS/${1}_val.json" | tee "$RUNS/${1}_val.log"
-}
-train flip s40_refine_mix 10000 --lr 1e-3 --warmup 200 --seed 44     # 43 min here, beside short evaluations
-sweep flip
+source "$(dirname "$0")/_flip_scorer.sh"
+scorer_run flip scorer_flip_cpu s40_refine_mix 10000 --lr 1e-3 --warmup 200 --seed 44     # 43 min here, beside short evaluations
+flip_sweep flip "$RUNS/export/flip"
 # robots in one paint (half of them; half of the rest repainted), 3,600 images, with session 40's two sets
 [ -f "$DATA/s44_flip_mono/.complete" ] || { "$PY" -m rhaml_jax.generate --out "$DATA/s44_flip_mono" --num 3600 --negatives 0 \
   --seed 441 --workers 2 --ranges.repaint-prob 0.5 --ranges.monochrome-prob 0.5 && touch "$DATA/s44_flip_mono/.complete"; }
 [ -d "$DATA/s44_flip_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s44_flip_mix" \
   "$DATA/s44_flip_mono" "$DATA/s40_refine_v1" "$DATA/s40_refine_v3"
-train flip_mono s44_flip_mix 4000 --lr 5e-4 --warmup 100 --seed 441 --init "$RUNS/export/flip"
-sweep flip_mono
+scorer_run flip_mono scorer_flip_cpu s44_flip_mix 4000 --lr 5e-4 --warmup 100 --seed 441 --init "$RUNS/export/flip"
+flip_sweep flip_mono "$RUNS/export/flip_mono"
 # Then the validation by the rule (the pipeline's search runs between the coarse and the fine
 # iterations; threshold 0.9 from the sweep of run flip), and the test and held-out sets, reported only:
 #   LABEL=flip_s44 EXTRA="--scorer $RUNS/export/flip --flip-threshold 0.9 --post-iter 0" bash experiments/validate_networks.sh

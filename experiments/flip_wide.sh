@@ -22,21 +22,8 @@ gen s40_refine_v3 402 2400 --ranges.repaint-prob 0.5
 gen s40_refine_v1 401 2400 --appearance v1
 [ -d "$DATA/s44_flip_mix" ] || "$PY" experiments/mix_bop.py --out "$DATA/s44_flip_mix" \
   "$DATA/s44_flip_mono" "$DATA/s40_refine_v1" "$DATA/s40_refine_v3"
-run=flip_wide
-grep -qs '"step": 5000,' "$RUNS/$run/metrics.jsonl" || \
-  "$PY" -m rhaml_jax.train --stage scorer --config scorer_flip_wide_cpu --data "$DATA/s44_flip_mix" --out "$RUNS/$run" \
-    --steps 5000 --batch 16 --lr 5e-4 --warmup 100 --seed 451 --init rhaml_jax/checkpoints/scorer_flip_cpu \
-    --val-every 1000 --val-batches 8 --ckpt-every 250 --log-every 50 --no-progress \
-    $( [ -d "$RUNS/$run/checkpoints" ] && echo --resume )
-[ -e "$RUNS/export/$run" ] || "$PY" -c "from rhaml_jax.refine.scorer import export_scorer as e; e('$RUNS/$run', '$RUNS/export/$run')"
-sweep() {  # name scorer: experiments/flip_scorer.py --mirror on the 14 validation sequences' stored default runs
-  local d sets args=()
-  sets="val_scen_s7_500/circle val_scen_s7_500/sine val_scen_s8_500/circle val_scen_s8_500/sine
-    val_ood/circle val_ood/sine val_ood_s2/circle val_ood_s2/sine"
-  for c in purple orange grey; do for s in circle sine; do sets="$sets val_mono/${s}_$c"; done; done
-  for d in $sets; do args+=(--run "$EV/ens_native_$(echo "$d" | tr / _).json" "$DATA/$d"); done
-  [ -e "$RUNS/${1}_val.json" ] || "$PY" experiments/flip_scorer.py --scorer "$2" "${args[@]}" --mirror \
-    --out "$RUNS/${1}_val.json" | tee "$RUNS/${1}_val.log"
-}
-sweep flip rhaml_jax/checkpoints/scorer_flip_cpu
-sweep $run "$RUNS/export/$run"
+source "$(dirname "$0")/_flip_scorer.sh"
+scorer_run flip_wide scorer_flip_wide_cpu s44_flip_mix 5000 --lr 5e-4 --warmup 100 --seed 451 \
+  --init rhaml_jax/checkpoints/scorer_flip_cpu
+flip_sweep flip_mirror rhaml_jax/checkpoints/scorer_flip_cpu --mirror       # the shipped scorer's, with the mirrored read
+flip_sweep flip_wide "$RUNS/export/flip_wide" --mirror
