@@ -71,6 +71,11 @@ class RefinerConfig:
     image's, and the image's border is not repeated; boxes wider than N - 2 px fall back to the
     crop-resolution render. `refine.train.render_crop`"""
 
+    paint_prob: float = 0.0
+    """training: the render's parts repainted this often (`data.sample_paint`: half in one paint; the
+    observed robot is repainted by the data), so that the update rests on the shape, not on the
+    model's paint matching the robot's: a user's CAD colours are not the robot's"""
+
     def __post_init__(self):
         from rhaml_jax.errors import RhamlError
 
@@ -80,6 +85,8 @@ class RefinerConfig:
             raise RhamlError(f"RefinerConfig.part_weights {self.part_weights}: expected three weights >= 0, one > 0")
         if self.starts not in ("coarse", "fine"):
             raise RhamlError(f"RefinerConfig.starts {self.starts!r}: expected 'coarse' or 'fine'")
+        if not 0 <= self.paint_prob <= 1:
+            raise RhamlError(f"RefinerConfig.paint_prob must be in [0, 1], got {self.paint_prob}")
         if self.native and self.native < self.crop:
             raise RhamlError(f"RefinerConfig.native {self.native}: expected 0 or a window of at least the crop ({self.crop} px)")
 
@@ -100,6 +107,9 @@ REFINER_CONFIGS = {"refiner_cpu": RefinerConfig(), "refiner_cpu_luma": RefinerCo
                    "refiner_fine_cpu": RefinerConfig(name="refiner_fine_cpu", margin=1.2, starts="fine"),
                    # the same on renders at the image's pixel centres (session 42)
                    "refiner_fine_native_cpu": RefinerConfig(name="refiner_fine_native_cpu", margin=1.2, starts="fine", native=128),
+                   # the coarse and fine refiners trained with their renders repainted half the time (session 46)
+                   "refiner_paint_cpu": RefinerConfig(name="refiner_paint_cpu", paint_prob=0.5),
+                   "refiner_fine_paint_cpu": RefinerConfig(name="refiner_fine_paint_cpu", margin=1.2, starts="fine", paint_prob=0.5),
                    "refiner_micro": RefinerConfig(name="refiner_micro", crop=32, widths=(8, 16), hidden=32, n_points=64),
                    "refiner_micro_fine": RefinerConfig(name="refiner_micro_fine", crop=32, widths=(8, 16), hidden=32,
                                                        n_points=64, margin=1.2, starts="fine"),  # the tests' cascade

@@ -203,28 +203,7 @@ class ScorerSource(CropSource):
     estimate at the true position plus N(0, pos_sigma_m) along and across the line of sight with a
     heading drawn near the truth (uniform within `near_deg`) or anywhere (`far_prob`), its crop,
     and the hypotheses: that estimate turned by `train_offsets_deg` about the config's pivot; the
-    render's face colours, repainted with `paint_prob` (drawn from a stream of their own: a config
-    without repainting draws the examples it drew before)."""
-
-    _PAINT_STREAM = 7
-
-    @functools.cached_property
-    def _parts(self):
-        """The model's face colours (F, 3) float32 and their colour groups (groups (G, 3), group of each face (F,))."""
-        from rhaml_jax.data._appearance import color_groups
-
-        colours = np.asarray(self.model.face_colors, np.float32)
-        return colours, *color_groups(colours)
-
-    def paint(self, index: int) -> np.ndarray:
-        """(F, 3) float32 the face colours example `index` renders with."""
-        from rhaml_jax.data import sample_paint
-
-        colours, groups, inverse = self._parts
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, index, self._PAINT_STREAM]))
-        if not self.cfg.paint_prob or rng.random() >= self.cfg.paint_prob:
-            return colours
-        return sample_paint(rng, groups)[inverse].astype(np.float32)
+    render's face colours (`CropSource.paint`)."""
 
     def initial(self, xypsi, rng):
         x, y, psi = xypsi

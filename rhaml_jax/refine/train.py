@@ -15,6 +15,7 @@ at the initial pose is made inside the jitted step (`render.render`, hard RGB + 
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import NamedTuple
 
@@ -38,6 +39,7 @@ class RefinerBatch(NamedTuple):
     K: np.ndarray  # (B, 3, 3)
     T_init: np.ndarray  # (B, 7) T_cam_model wxyz_xyz of the initial pose
     T_gt: np.ndarray  # (B, 7) the true T_cam_model
+    paint: np.ndarray  # (B, F, 3) float32 the render's face colours (the model's, or repainted: `RefinerConfig.paint_prob`)
 
 
 def _corners(vertices: np.ndarray) -> np.ndarray:
@@ -92,6 +94,29 @@ class CropSource:
         self.cfg, self.batch, self.seed = cfg, batch, seed
         self._cache = ImageCache(self.cache_bytes)
 
+    _PAINT_STREAM = 7
+
+    @functools.cached_property
+    def _parts(self):
+        """The model's face colours (F, 3) float32 and their colour groups (groups (G, 3), group of each face (F,))."""
+        from rhaml_jax.data._appearance import color_groups
+
+        colours = np.asarray(self.model.face_colors, np.float32)
+        return colours, *color_groups(colours)
+
+    def paint(self, index: int) -> np.ndarray:
+        """(F, 3) float32 the face colours example `index` renders with: the model's, or with the
+        config's `paint_prob` repainted (`data.sample_paint`: half in one paint). Drawn from a stream
+        of their own, so a config without repainting draws the examples it drew before."""
+        from rhaml_jax.data import sample_paint
+
+        colours, groups, inverse = self._parts
+        prob = getattr(self.cfg, "paint_prob", 0.0)
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, index, self._PAINT_STREAM]))
+        if not prob or rng.random() >= prob:
+            return colours
+        return sample_paint(rng, groups)[inverse].astype(np.float32)
+
     def image(self, i):
         """(H, W, 3) uint8 RGB and (H, W) uint8 mask (0 or 255) of frame i (decoded once, cached)."""
         from rhaml_jax.data import load_mask, load_rgb
@@ -136,19 +161,20 @@ class RefinerSource(CropSource):
 
     def example(self, index: int):
         f, T_init, box, obs, m = self.drawn(index)
-        return obs, m, box.astype(np.float32), f.K.astype(np.float32), _se3_params(T_init), _se3_params(f.T_m2c)
+        return (obs, m, box.astype(np.float32), f.K.astype(np.float32), _se3_params(T_init), _se3_params(f.T_m2c),
+                self.paint(index))
 
     def __call__(self, step: int) -> RefinerBatch:
         ex = [self.example(step * self.batch + j) for j in range(self.batch)]
-        return RefinerBatch(*(np.stack([e[k] for e in ex]) for k in range(6)))
+        return RefinerBatch(*(np.stack([e[k] for e in ex]) for k in range(len(RefinerBatch._fields))))
 
 
-def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str) -> None:
+def check_refiner_batch(cfg: N.RefinerConfig, b, size: int, where: str, faces: int) -> None:
     from rhaml_jax.refine._task import check_fields
 
     S = cfg.crop
     check_fields(b, {"obs": (size, S, S, 3), "obs_mask": (size, S, S), "box": (size, 4), "K": (size, 3, 3),
-                     "T_init": (size, 7), "T_gt": (size, 7)}, "RefinerBatch", where)
+                     "T_init": (size, 7), "T_gt": (size, 7), "paint": (size, faces, 3)}, "RefinerBatch", where)
 
 
 def render_input(mesh, cfg: N.RefinerConfig, obs, T_cam: jaxlie.SE3, K, box, light_dir=render.DEFAULT_LIGHT):
@@ -183,9 +209,11 @@ def render_crop(mesh, cfg: N.RefinerConfig, T_cam: jaxlie.SE3, K, box, light_dir
 
 
 def refiner_loss(cfg: N.RefinerConfig, mesh, points, params, b):
-    obs, obs_mask, box, K, T_init, T_gt = b
+    obs, obs_mask, box, K, T_init, T_gt, paint = b
     T0 = jaxlie.SE3(T_init)
-    x = render_input(mesh, cfg, obs, T0, K, box)
+    # each example rendered in its own paint (a batch of one inside: `render_crop`'s native path maps over a batch)
+    x = jax.vmap(lambda o, T, k, bx, c: render_input(mesh._replace(face_colors=c), cfg, o[None], jaxlie.SE3(T[None]),
+                                                     k[None], bx[None])[0])(obs, T_init, K, box, paint)
     out = N.apply(cfg, params, x)
     Tg = jaxlie.SE3(T_gt)
     pose = N.update_loss(cfg, T0, out.update, Tg, K, box, points)
@@ -205,8 +233,9 @@ def refiner_task(cfg: N.RefinerConfig, tc, mesh, model, val_source=None, num_dev
     mesh = render.as_mesh(mesh)
     return network_task("refiner", cfg, tc, model, init_params=N.init_params, config_to_dict=N.config_to_dict,
                         config_from_dict=N.config_from_dict,
-                        loss=lambda params, *b: refiner_loss(cfg, mesh, points, params, b), n_fields=6,
-                        check_batch=lambda b, size, where: check_refiner_batch(cfg, b, size, where),
+                        loss=lambda params, *b: refiner_loss(cfg, mesh, points, params, b),
+                        n_fields=len(RefinerBatch._fields),
+                        check_batch=lambda b, size, where: check_refiner_batch(cfg, b, size, where, len(mesh.faces)),
                         val_source=val_source, num_devices=num_devices)
 
 
