@@ -21,7 +21,7 @@ from rhaml_jax.data import load_bop_model, load_rgb, read_bop
 from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine import RefineConfig, load_refiner, refine
 from rhaml_jax.refine import net as N
-from rhaml_jax.refine.train import RefinerSource
+from rhaml_jax.refine.train import RefinerBatch, RefinerSource
 from tests.conftest import train_tiny
 
 
@@ -94,6 +94,47 @@ def test_source_is_a_pure_function_of_seed_and_step(bop_set):
     for x, y in zip(a(1), b(1)):
         np.testing.assert_array_equal(x, y)
     assert not np.allclose(a(0).T_init, a(1).T_init)
+
+
+@pytest.mark.parametrize("config", ["refiner_micro", "refiner_micro_native"])
+def test_repainted_renders_are_the_refiners_input_and_nothing_else_changes(bop_set, config):
+    """`RefinerConfig.paint_prob`: at 1 every example renders a repainted robot (a part repainted
+    whole), the rest of each example is the same as without (the paint has its own stream), and the
+    network's input is the render in that paint; in the model's own paint the per-example render
+    is the batched one the refiner ran before."""
+    from rhaml_jax.data._appearance import color_groups
+    from rhaml_jax.refine.train import refiner_loss, render_input
+
+    cfg = N.get_refiner_config(config)
+    plain = RefinerSource(bop_set, "train", cfg, 3, seed=2)(0)
+    painted = RefinerSource(bop_set, "train", dataclasses.replace(cfg, paint_prob=1.0), 3, seed=2)(0)
+    model = load_bop_model(bop_set)
+    own = np.asarray(model.face_colors, np.float32)
+    np.testing.assert_array_equal(plain.paint, np.broadcast_to(own, plain.paint.shape))
+    for field in RefinerBatch._fields[:-1]:
+        np.testing.assert_array_equal(getattr(plain, field), getattr(painted, field))
+    _, group = color_groups(own)
+    for p in painted.paint:
+        assert np.abs(p - own).max() > 0.05
+        for g in np.unique(group):
+            assert np.ptp(p[group == g], axis=0).max() == 0
+    mesh = render.as_mesh(model)
+    points = jnp.asarray(model.sample_surface(cfg.n_points, seed=0))
+    params = N.init_params(cfg, jax.random.key(1))
+    params = jax.tree.map(lambda a: a + 0.1 * jax.random.normal(jax.random.key(2), a.shape), params)  # not the zero head
+    la, _ = refiner_loss(cfg, mesh, points, params, tuple(jnp.asarray(x) for x in plain))
+    lb, _ = refiner_loss(cfg, mesh, points, params, tuple(jnp.asarray(x) for x in painted))
+    assert abs(float(la) - float(lb)) > 1e-6
+    args = tuple(jnp.asarray(a) for a in (plain.obs, plain.T_init, plain.K, plain.box))
+    batched = jax.jit(lambda m, o, T, k, bx: render_input(m, cfg, o, jaxlie.SE3(T), k, bx))  # as the loss ran it before
+    per_example = jax.jit(jax.vmap(lambda c, o, T, k, bx: render_input(mesh._replace(face_colors=c), cfg, o[None],
+                                                                        jaxlie.SE3(T[None]), k[None], bx[None])[0]))
+    np.testing.assert_allclose(per_example(jnp.asarray(plain.paint), *args), batched(mesh, *args), atol=1e-5)
+    repainted = per_example(jnp.asarray(painted.paint), *args)
+    np.testing.assert_array_equal(repainted[..., :3], args[0])  # the observed crop is the data's
+    assert float(jnp.abs(repainted - batched(mesh, *args))[..., 3:6].max()) > 0.05  # the render is not
+    with pytest.raises(RhamlError, match="paint_prob"):
+        dataclasses.replace(cfg, paint_prob=-0.1)
 
 
 def test_gradients_reach_the_initial_pose_and_the_params(run, bop_set):
