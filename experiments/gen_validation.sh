@@ -1,7 +1,7 @@
 #!/bin/bash
 # Renders the data sets that experiments/validate_networks.sh scores (ours: circle + sine of seeds
-# 7 and 8, 500 frames each; the OOD look of seeds 1 and 2; the one-paint look) and, for the
-# reported-only columns, our circle + sine (seed 0) and the held-out appearance set. A set already
+# 7 and 8, 500 frames each; the OOD look of seeds 1 and 2; the one-paint look, and its images with
+# the robot's own model as the set's model: val_mono_cad) and, for the reported-only columns, our circle + sine (seed 0) and the held-out appearance set. A set already
 # on disk is skipped, so an interrupted run resumes. About 15 min for the validation sets and 15
 # more for the held-out set with one worker each, two sets at a time on this 2-core machine.
 #
@@ -21,7 +21,8 @@ for s in 7 8; do
   for sc in circle sine; do gen "$DATA/val_scen_s${s}_500/$sc" --scenario $sc --frames 500 --seed $s & done
   wait
 done
-[ -f "$DATA/val_mono/.done" ] || { $PY experiments/val_mono.py --out "$DATA/val_mono" --scenarios sine circle > "$DATA/val_mono.log" 2>&1 && touch "$DATA/val_mono/.done"; }
+[ -f "$DATA/val_mono/.done" ] && [ -d "$DATA/val_mono_cad" ] || { $PY experiments/val_mono.py --out "$DATA/val_mono" \
+  --scenarios sine circle --cad-out "$DATA/val_mono_cad" > "$DATA/val_mono.log" 2>&1 && touch "$DATA/val_mono/.done"; }
 gen "$DATA/ours/circle" --scenario circle &
 gen "$DATA/ours/sine" --scenario sine &
 wait

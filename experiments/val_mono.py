@@ -9,6 +9,11 @@ the heading survives the loss of the parts' own colours (the tyres' dark, the bo
 writes OUT/{purple,orange,grey}.ply (the robot in metres, recoloured) and OUT/{scenario}_{look}
 (`generate --scenario SCENARIO --seed 7 --robot OUT/{look}.ply`; the sine alone by default, as
 session 25 used it; `experiments/validate_networks.sh` scores the circle too).
+
+With --cad-out CAD, also CAD/{scenario}_{look}: the same images (linked) with the robot's own
+model, in its own paint, as the set's model: what a user has whose CAD colours are not the robot's
+(the held-out set's case: a teal robot, the model file in its own paint). Every stage that renders
+the model then renders a paint the image does not show.
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ def main():
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--scenarios", nargs="+", default=["sine"], choices=["circle", "sine"])
+    ap.add_argument("--cad-out", type=Path, help="also the sets with the robot's own model (see above)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     for k, look in enumerate(LOOKS):
@@ -62,6 +68,23 @@ def main():
             if not (out / "test" / "000000" / "scene_gt.json").exists():  # a finished set is kept
                 subprocess.run([sys.executable, "-m", "rhaml_jax.generate", "--out", str(out), "--scenario", scenario,
                                 "--frames", str(args.frames), "--seed", "7", "--robot", str(ply), "--workers", "1"], check=True)
+            if args.cad_out:
+                own_model(out, args.cad_out / out.name)
+
+
+def own_model(src: Path, out: Path) -> None:
+    """out: src's camera and images (linked), the built-in robot in its own paint as the model."""
+    import shutil
+
+    from rhaml_jax.camera import DEFAULT_CAMERA
+    from rhaml_jax.data._bop import write_dataset_header
+    from rhaml_jax.robots import load_robot
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_dataset_header(out, load_robot("pioneer3dx"), DEFAULT_CAMERA)
+    shutil.copyfile(src / "camera.json", out / "camera.json")
+    if not (out / "test").exists():
+        (out / "test").symlink_to((src / "test").resolve(), target_is_directory=True)
 
 
 if __name__ == "__main__":
