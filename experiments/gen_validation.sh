@@ -2,8 +2,9 @@
 # Renders the data sets that experiments/validate_networks.sh scores (ours: circle + sine of seeds
 # 7 and 8, 500 frames each; the OOD look of seeds 1 and 2; the one-paint look, and its images with
 # the robot's own model as the set's model: val_mono_cad) and, for the reported-only columns, our
-# circle + sine (seed 0) and the held-out appearance set. A set already on disk is skipped, so an interrupted run resumes. About 15 min for the validation sets and 15
-# more for the held-out set with one worker each, two sets at a time on this 2-core machine.
+# circle + sine (seed 0) and the held-out appearance set. A set already on disk is skipped, so an
+# interrupted run resumes. About 15 min for the validation sets and 15 more for the held-out set with
+# one worker each, two sets at a time on this 2-core machine.
 #
 #   PY=.venv/bin/python bash experiments/gen_validation.sh [DATA]       # DATA defaults to /work/data
 set -e
