@@ -16,3 +16,22 @@ refiner_run paint refiner_paint_cpu s44_flip_mix $C/refiner_cpu 46 --steps 5000 
 refiner_run fine_paint refiner_fine_paint_cpu s44_flip_mix $C/refiner_fine_more_cpu 461 --steps 5000 --val-every 1000 \
   --val-batches 8 > "$RUNS/fine_paint.log" 2>&1 &
 wait
+# paint_bench NAME [BENCH_ARGS...]: the cascade from the paper's noise (every 10th frame) on one circle
+# of each look: ours (seed 7), OOD (seed 1), one paint grey and purple, and the same two with the
+# robot's own model (val_mono_cad) -> $RUNS/NAME_LOOK.json (kept: a rerun skips it)
+paint_bench() {
+  local name=$1 look set
+  shift
+  for look in ours:val_scen_s7_500/circle ood:val_ood/circle grey:val_mono/circle_grey cad_grey:val_mono_cad/circle_grey \
+              purple:val_mono/circle_purple cad_purple:val_mono_cad/circle_purple; do
+    set=${look#*:}; look=${look%%:*}
+    [ -f "$RUNS/${name}_$look.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set" --starts noise --stride 10 \
+      --no-oracle --mirror fine --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --fine-iter 2 "$@" \
+      --json "$RUNS/${name}_$look.json" > "$RUNS/${name}_$look.log" 2>&1
+  done
+}
+FINE=($C/refiner_fine_more_cpu $C/refiner_fine_native_cpu)
+paint_bench bench_default --refiner $C/refiner_cpu --fine-refiner "${FINE[@]}"
+paint_bench bench_coarse --refiner "$RUNS/export/paint" --fine-refiner "${FINE[@]}"
+paint_bench bench_both --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint" $C/refiner_fine_native_cpu
+paint_bench bench_paint --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint"

@@ -10,7 +10,8 @@ our IML errs (range off by up to 15 %, bearing N(0, 1.5 deg), heading N(0, 10 de
 what a coarse refiner leaves (range off by N(0, 1 %) or N(0, 3 %), bearing N(0, 0.2 deg) or
 N(0, 0.6 deg), heading N(0, 2 deg) or N(0, 6 deg), half each). The crop box comes from the initial pose (DeepIM's
 zoom-in, `rhaml_jax.crop.object_box`); the observed crop is `crop.crop_image_host`, the render
-at the initial pose is made inside the jitted step (`render.render`, hard RGB + mask).
+at the initial pose is made inside the jitted step (`render.render`, hard RGB + mask), in the
+model's paint or, with `RefinerConfig.paint_prob`, repainted (`CropSource.paint`).
 """
 
 from __future__ import annotations
