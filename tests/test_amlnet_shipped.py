@@ -105,7 +105,7 @@ def test_default_iml_localises_rendered_robots():
 
 
 @pytest.mark.parametrize("name", sorted({DEFAULT_REFINER, *DEFAULT_FINE_REFINERS, "refiner_cpu", "refiner_fine_cpu", "refiner_fine_long_cpu",
-                                         "refiner_fit167_cpu", "refiner_fit180_cpu"}))
+                                         "refiner_fine_more_cpu", "refiner_fit167_cpu", "refiner_fit180_cpu"}))
 def test_shipped_refiner_size_and_robot(name):
     """The shipped refiners (the default, `refine.DEFAULT_REFINER`, and the others): within the size
     budget, finite, the Pioneer's (another robot is refused)."""
@@ -120,10 +120,12 @@ def test_shipped_refiner_size_and_robot(name):
     assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
     robot = load_robot("pioneer3dx")
     refiner = load_refiner(path, robot)
-    fine = name in (*DEFAULT_FINE_REFINERS, "refiner_fine_cpu", "refiner_fine_long_cpu")  # a cascade's second stage
-    assert refiner.cfg.name == ("refiner_fine_native_cpu" if name == "refiner_fine_native_cpu" else
-                                "refiner_fine_cpu" if fine else "refiner_cpu")
+    fine = name in (*DEFAULT_FINE_REFINERS, "refiner_fine_cpu", "refiner_fine_long_cpu", "refiner_fine_more_cpu")  # a cascade's second stage
+    trained_as = {"refiner_fine_native_cpu": "refiner_fine_native_cpu", "refiner_paint_cpu": "refiner_paint_cpu",
+                  "refiner_fine_paint_cpu": "refiner_fine_paint_cpu"}  # the others: their stage's base config
+    assert refiner.cfg.name == trained_as.get(name, "refiner_fine_cpu" if fine else "refiner_cpu")
     assert refiner.cfg.starts == ("fine" if fine else "coarse")
+    assert refiner.cfg.paint_prob == (0.5 if "paint" in name else 0.0)
     assert all(np.isfinite(np.asarray(p)).all() for p in jax.tree.leaves(refiner.params))
     with pytest.raises(RhamlError, match="refiner checkpoint is for robot"):
         load_refiner(path, dataclasses.replace(robot, vertices=robot.vertices * 1.5))
@@ -136,8 +138,8 @@ def test_the_default_ir_stage_is_the_shipped_cascade():
     from rhaml_jax.refine import DEFAULT_FLIP_THRESHOLD, RefineConfig, load_stage
 
     cfg, stage = load_stage()
-    assert stage.refiner.cfg.starts == "coarse"
-    assert [m.cfg.name for m in stage.fine] == ["refiner_fine_cpu", "refiner_fine_native_cpu"]
+    assert (stage.refiner.cfg.name, stage.refiner.cfg.starts) == ("refiner_paint_cpu", "coarse")
+    assert [m.cfg.name for m in stage.fine] == ["refiner_fine_paint_cpu", "refiner_fine_native_cpu"]
     assert stage.scorer.cfg.name == "scorer_flip_wide_cpu"
     assert (cfg.flip_threshold, cfg.post_iter) == (DEFAULT_FLIP_THRESHOLD, 0) != (RefineConfig.flip_threshold, RefineConfig.post_iter)
     assert load_stage(fine="none")[1].fine is None

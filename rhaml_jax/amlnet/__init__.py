@@ -16,9 +16,9 @@ Public API:
   default IML pair, `iml.DEFAULT_AMLNET`; "heat_chroma_cpu" + "zoom_fit_cpu"; "heat_fit_cpu" + "zoom_fit_cpu"; "amlnet_cpu" + "zoom_cpu";
   "heat_cpu" + "zoom_luma_cpu"; "heat_fit167_cpu" + "zoom_fit167_cpu", made with
   "refiner_fit167_cpu" by one from-scratch `fit` run, with "refiner_fit180_cpu" by its 180-minute
-  budget; "refiner_cpu" + the fine ensemble "refiner_fine_more_cpu" and "refiner_fine_native_cpu", the default IR
-  stage, `refine.load_stage`, and the fine refiners they were trained from, "refiner_fine_long_cpu" and
-  "refiner_fine_cpu");
+  budget; "refiner_paint_cpu" + the fine ensemble "refiner_fine_paint_cpu" and "refiner_fine_native_cpu",
+  the default IR stage, `refine.load_stage`, and the refiners they were trained from, "refiner_cpu",
+  "refiner_fine_more_cpu", "refiner_fine_long_cpu" and "refiner_fine_cpu");
   `ToyRectangles` is a toy source for tests only;
 
 The zoom-in stage, a small AMLNet (config task "zoom") on a crop around AMLNet's estimate, has

@@ -396,21 +396,24 @@ def export_refiner(run_dir: str | Path, out_dir: str | Path) -> Path:
     return export_params(run_dir, out_dir, load_refiner(run_dir).params)
 
 
-DEFAULT_REFINER = "refiner_cpu"
-"""the shipped refiner that `load_stage`, `evaluate` and the demo use unless given another (chosen on
-validation; `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit` runs', ship beside
-it: BENCHMARKS.md, "The 180-minute fit, and the default networks kept")"""
+DEFAULT_REFINER = "refiner_paint_cpu"
+"""the shipped refiner that `load_stage`, `evaluate` and the demo use unless given another:
+`refiner_cpu` fine-tuned with its renders repainted half the time (`RefinerConfig.paint_prob`), so
+that its update rests less on the model's paint matching the robot's. Chosen on validation
+(BENCHMARKS.md, "Refiners trained on repainted renders"); `refiner_cpu`, the default until session
+46, ships beside it, as do `refiner_fit167_cpu` and `refiner_fit180_cpu`, the from-scratch `fit` runs'"""
 
 
-DEFAULT_FINE_REFINERS = ("refiner_fine_more_cpu", "refiner_fine_native_cpu")
+DEFAULT_FINE_REFINERS = ("refiner_fine_paint_cpu", "refiner_fine_native_cpu")
 """the shipped cascade's fine refiners, run after `DEFAULT_REFINER` unless another refiner is given:
-an ensemble whose fine iterations average the two updates (`check_ensemble`). `refiner_fine_more_cpu`
-(config `refiner_fine_cpu`, `RefinerConfig.starts` "fine"; BENCHMARKS.md, "The fine refiner on twice
-the images") and `refiner_fine_native_cpu` (trained from it on renders at the image's pixel centres,
-`RefinerConfig.native`). Chosen on validation: the ensemble takes 11 % off |dx| from the paper's noise
-and 1.9 % off the IML+IR position over the validation looks (BENCHMARKS.md, "An ensemble of fine
-refiners"). The fine refiners they were trained from ship beside them: `refiner_fine_long_cpu`, "The
-fine refiner trained longer", and session 29's `refiner_fine_cpu` ("A fine refiner")"""
+an ensemble whose fine iterations average the two updates (`check_ensemble`). `refiner_fine_paint_cpu`
+(`refiner_fine_more_cpu` fine-tuned with repainted renders, config `refiner_fine_paint_cpu`; session
+46) and `refiner_fine_native_cpu` (trained from `refiner_fine_more_cpu` on renders at the image's pixel
+centres, `RefinerConfig.native`). The ensemble was chosen on validation in session 43 (BENCHMARKS.md,
+"An ensemble of fine refiners"), its first member replaced in session 46 ("Refiners trained on
+repainted renders"). The fine refiners they were trained from ship beside them: `refiner_fine_more_cpu`
+("The fine refiner on twice the images"), `refiner_fine_long_cpu` ("The fine refiner trained longer")
+and session 29's `refiner_fine_cpu` ("A fine refiner")"""
 
 
 DEFAULT_MIRROR = "fine"
