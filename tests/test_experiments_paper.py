@@ -65,8 +65,8 @@ def test_table_i_json_and_npz(table):
 
     r, ir = res["rows"], table_i.refiner_size()
     k = RefineConfig().fine_iter * (2 if DEFAULT_MIRROR != "none" else 1)
-    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_cpu x 4", f"refiner_fine_cpu x {k}", f"refiner_fine_native_cpu x {k}",
-                                                         "scorer_flip_wide_cpu x 2"]
+    assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_paint_cpu x 4", f"refiner_fine_paint_cpu x {k}",
+                                                         f"refiner_fine_native_cpu x {k}", "scorer_flip_wide_cpu x 2"]
     assert r["rhaml"]["params"] == r["iml"]["params"] + ir["params"] and r["rhaml"]["macs"] == r["iml"]["macs"] + ir["macs"]
     assert r["rhaml"]["params"] > r["iml"]["params"] > r["amlnet"]["params"]
     assert r["rhaml"]["macs"] > r["iml"]["macs"] > r["amlnet"]["macs"]
