@@ -103,7 +103,7 @@ def test_repainted_renders_are_the_refiners_input_and_nothing_else_changes(bop_s
     network's input is the render in that paint; in the model's own paint the per-example render
     is the batched one the refiner ran before."""
     from rhaml_jax.data._appearance import color_groups
-    from rhaml_jax.refine.train import refiner_loss, render_input
+    from rhaml_jax.refine.train import painted_input, refiner_loss, render_input
 
     cfg = N.get_refiner_config(config)
     plain = RefinerSource(bop_set, "train", cfg, 3, seed=2)(0)
@@ -127,8 +127,7 @@ def test_repainted_renders_are_the_refiners_input_and_nothing_else_changes(bop_s
     assert abs(float(la) - float(lb)) > 1e-6
     args = tuple(jnp.asarray(a) for a in (plain.obs, plain.T_init, plain.K, plain.box))
     batched = jax.jit(lambda m, o, T, k, bx: render_input(m, cfg, o, jaxlie.SE3(T), k, bx))  # as the loss ran it before
-    per_example = jax.jit(jax.vmap(lambda c, o, T, k, bx: render_input(mesh._replace(face_colors=c), cfg, o[None],
-                                                                        jaxlie.SE3(T[None]), k[None], bx[None])[0]))
+    per_example = jax.jit(lambda c, o, T, k, bx: painted_input(mesh, cfg, o, T, k, bx, c))  # what the loss runs
     np.testing.assert_allclose(per_example(jnp.asarray(plain.paint), *args), batched(mesh, *args), atol=1e-5)
     repainted = per_example(jnp.asarray(painted.paint), *args)
     np.testing.assert_array_equal(repainted[..., :3], args[0])  # the observed crop is the data's

@@ -209,12 +209,18 @@ def render_crop(mesh, cfg: N.RefinerConfig, T_cam: jaxlie.SE3, K, box, light_dir
     return jnp.where(fits[..., None], crops[..., :3], direct.rgb), jnp.where(fits, crops[..., 3], direct.mask.astype(jnp.float32))
 
 
+def painted_input(mesh, cfg: N.RefinerConfig, obs, T_init, K, box, paint):
+    """`render_input` with each example's render in its own face colours: obs (B, S, S, 3), T_init
+    (B, 7) wxyz_xyz, K (B, 3, 3), box (B, 4), paint (B, F, 3) -> (B, S, S, C). A batch of one inside,
+    since `render_crop`'s native path maps over a batch."""
+    return jax.vmap(lambda o, T, k, bx, c: render_input(mesh._replace(face_colors=c), cfg, o[None], jaxlie.SE3(T[None]),
+                                                        k[None], bx[None])[0])(obs, T_init, K, box, paint)
+
+
 def refiner_loss(cfg: N.RefinerConfig, mesh, points, params, b):
     obs, obs_mask, box, K, T_init, T_gt, paint = b
     T0 = jaxlie.SE3(T_init)
-    # each example rendered in its own paint (a batch of one inside: `render_crop`'s native path maps over a batch)
-    x = jax.vmap(lambda o, T, k, bx, c: render_input(mesh._replace(face_colors=c), cfg, o[None], jaxlie.SE3(T[None]),
-                                                     k[None], bx[None])[0])(obs, T_init, K, box, paint)
+    x = painted_input(mesh, cfg, obs, T_init, K, box, paint)
     out = N.apply(cfg, params, x)
     Tg = jaxlie.SE3(T_gt)
     pose = N.update_loss(cfg, T0, out.update, Tg, K, box, points)
