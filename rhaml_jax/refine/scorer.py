@@ -110,16 +110,15 @@ SCORER_CONFIGS = {"scorer_cpu": ScorerConfig(),
                   "scorer_flip_wide_cpu": ScorerConfig(name="scorer_flip_wide_cpu", crop=96, widths=(32, 64, 96, 128, 128),
                                                        margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
                                                        far_prob=0.5, sigma_deg=30.0, pivot="centre", paint_prob=0.5),
-                  # its two changes apart (session 46): estimates anywhere with the wide target only, repainted renders only
-                  "scorer_flip_far_cpu": ScorerConfig(name="scorer_flip_far_cpu", crop=96, widths=(32, 64, 96, 128, 128),
-                                                      margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
-                                                      far_prob=0.5, sigma_deg=30.0, pivot="centre"),
-                  "scorer_flip_paint_cpu": ScorerConfig(name="scorer_flip_paint_cpu", crop=96, widths=(32, 64, 96, 128, 128),
-                                                        margin=1.2, grid=2, fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0,
-                                                        far_prob=0.0, pivot="centre", paint_prob=0.5),
                   "scorer_flip_micro": ScorerConfig(name="scorer_flip_micro", crop=32, widths=(8, 16), hidden=16, grid=2,
                                                     fine=1, offsets_deg=(0.0, 180.0), near_deg=6.0, far_prob=0.0,
                                                     pivot="centre")}
+
+# scorer_flip_wide_cpu's two changes apart (session 46): estimates anywhere with the wide target only, repainted renders only
+SCORER_CONFIGS["scorer_flip_far_cpu"] = dataclasses.replace(SCORER_CONFIGS["scorer_flip_wide_cpu"], name="scorer_flip_far_cpu",
+                                                            paint_prob=0.0)
+SCORER_CONFIGS["scorer_flip_paint_cpu"] = dataclasses.replace(SCORER_CONFIGS["scorer_flip_wide_cpu"], name="scorer_flip_paint_cpu",
+                                                              far_prob=0.0, sigma_deg=ScorerConfig.sigma_deg)
 
 
 def get_scorer_config(name: str) -> ScorerConfig:
