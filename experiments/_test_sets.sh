@@ -25,7 +25,8 @@ val_bench() {
 # issue 15's table (experiments/bench_refine.py from the paper's noise and from the IML, every 5th frame
 # the IML detected). Each output is kept: a rerun skips it.
 #   test_sets NAME FINE_REFINER FINE_ITER MIRROR [EVALUATE_ARGS...]      (MIRROR: RefineConfig.mirror, none|fine|all;
-#   FINE_REFINER: one folder, or several separated by spaces, an ensemble)
+#   FINE_REFINER: one folder, or several separated by spaces, an ensemble; the table's coarse refiner: $REFINER,
+#   by default rhaml_jax/checkpoints/refiner_cpu, and more bench_refine.py options in $BENCH_ARGS)
 # writes $RUNS/test_NAME_{ours,heldout}_{circle,sine}.json (+ .log) and $RUNS/bench_test_NAME_{ours,heldout}.json.
 test_sets() {
   local name=$1 fine=$2 fine_iter=$3 mirror=$4 s j set out
@@ -39,6 +40,7 @@ test_sets() {
     out="$RUNS/bench_test_${name}_$set.json"
     [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
       --iml-json "$RUNS/test_${name}_${set}_circle.json" "$RUNS/test_${name}_${set}_sine.json" --starts noise iml --stride 5 \
-      --refiner rhaml_jax/checkpoints/refiner_cpu --fine-refiner $fine --fine-iter "$fine_iter" --mirror "$mirror" --no-oracle --json "$out"
+      --refiner "${REFINER:-rhaml_jax/checkpoints/refiner_cpu}" --fine-refiner $fine --fine-iter "$fine_iter" --mirror "$mirror" \
+      ${BENCH_ARGS:-} --no-oracle --json "$out"
   done
 }

@@ -36,17 +36,7 @@ paint_bench bench_coarse --refiner "$RUNS/export/paint" --fine-refiner "${FINE[@
 paint_bench bench_both --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint" $C/refiner_fine_native_cpu
 paint_bench bench_paint --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint"
 # The test and held-out sets, reported only (after the choice on validation: `compare_validation.py
-# wide_s45 paint_both_s46`): the whole pipeline with the defaults, which are now these refiners
-# (`evaluate --modules iml,ir,pgo --zoom-mirror`), then issue 15's table (from the paper's noise and
-# from the IML, every 5th frame the IML detected).
-for s in ours/circle ours/sine heldout/circle heldout/sine; do
-  j="$RUNS/test_paint_$(echo "$s" | tr / _).json"
-  [ -f "$j" ] || "$PY" -m rhaml_jax.evaluate --data "$DATA/$s" --modules iml,ir,pgo --zoom-mirror --json "$j" > "${j%.json}.log"
-done
-for set in ours heldout; do
-  out="$RUNS/bench_test_paint_$set.json"
-  [ -f "$out" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set/circle" "$DATA/$set/sine" \
-    --iml-json "$RUNS/test_paint_${set}_circle.json" "$RUNS/test_paint_${set}_sine.json" --starts noise iml --stride 5 \
-    --refiner $C/refiner_paint_cpu --fine-refiner $C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu --fine-iter 2 \
-    --mirror fine --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --no-oracle --json "$out" > "${out%.json}.log"
-done
+# wide_s45 paint_both_s46`): the whole pipeline with the defaults, which are now these refiners, then
+# issue 15's table with them and the default scorer (_test_sets.sh's test_sets).
+REFINER=$C/refiner_paint_cpu BENCH_ARGS="--scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0" \
+  test_sets paint "$C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu" 2 fine
