@@ -42,9 +42,8 @@ LOOKS = {  # the validation sets of experiments/validate_networks.sh, by look
     "ours": ["val_scen_s7_500/circle", "val_scen_s7_500/sine", "val_scen_s8_500/circle", "val_scen_s8_500/sine"],
     "ood": ["val_ood/circle", "val_ood/sine", "val_ood_s2/circle", "val_ood_s2/sine"],  # seeds 1 and 2 (s2: session 32 on)
     "mono": [f"val_mono/{s}_{c}" for c in ("purple", "orange", "grey") for s in ("circle", "sine")],
-    # the one-paint images with the robot's own model as the set's model (session 46 on)
-    "cad": [f"val_mono_cad/{s}_{c}" for c in ("purple", "orange", "grey") for s in ("circle", "sine")],
 }
+LOOKS["cad"] = [s.replace("val_mono/", "val_mono_cad/") for s in LOOKS["mono"]]  # the one-paint images, the robot's own model (session 46 on)
 ROWS = ("IML", "IML+PGO", "IML+IR", "IML+IR+PGO")
 FIGURES = ("ATE", "position")  # RMS over the observed frames of the twist (eq. 12) and of the position error alone
 
