@@ -73,8 +73,9 @@ class RefinerConfig:
 
     paint_prob: float = 0.0
     """training: the render's parts repainted this often (`data.sample_paint`: half in one paint; the
-    observed robot is repainted by the data), so that the update rests on the shape, not on the
-    model's paint matching the robot's: a user's CAD colours are not the robot's"""
+    observed robot is repainted by the data), so that the update rests less on the model's paint
+    matching the robot's: a user's CAD colours are not the robot's (it does not teach the heading of
+    a robot in one paint: BENCHMARKS.md, "Refiners trained on repainted renders")"""
 
     def __post_init__(self):
         from rhaml_jax.errors import RhamlError
