@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax import crop as _crop
+from rhaml_jax.errors import RhamlError
 from rhaml_jax.refine.net import _conv, _conv_init, config_to_dict, dataclass_from_dict, luminance, mask_loss, named_config
 from rhaml_jax.refine.train import CropSource
 
@@ -57,9 +58,20 @@ class SegmenterConfig:
     """training crop margins (the alignment uses 1.4 and, in its coarse pass, 2.5)"""
     w_dice: float = 0.5
     """weight of the soft-Dice term beside the per-pixel cross-entropy (small robots: few pixels)"""
+    starts: str = "coarse"
+    """where the training crops are centred (`refine.train.initial_pose`): "coarse", the paper's noise
+    or our IML's errors; "fine", the residuals a refiner cascade leaves (the alignment after it)"""
+
+    def __post_init__(self):
+        if self.starts not in ("coarse", "fine"):
+            raise RhamlError(f"SegmenterConfig.starts {self.starts!r}: expected 'coarse' or 'fine'")
 
 
 SEGMENTER_CONFIGS = {"segmenter_cpu": SegmenterConfig(),
+                     # after the refiner cascade: RGB (one-paint robots of any hue in training), its
+                     # 1.4x crop around the cascade's residuals
+                     "segmenter_fine_cpu": SegmenterConfig(name="segmenter_fine_cpu", luma=False, margin_range=(1.25, 1.6),
+                                                           starts="fine"),
                      "segmenter_micro": SegmenterConfig(name="segmenter_micro", crop=32, widths=(8, 16), stem=8)}
 
 
