@@ -52,6 +52,10 @@ class Args:
     """run the alignment's coarse position pass (`AlignConfig.coarse_stages`; --no-coarse: none)"""
     coarse_margin: float = AlignConfig.coarse_margin
     """`AlignConfig.coarse_margin`: the width of the coarse position pass's crop"""
+    stages: str | None = None
+    """`AlignConfig.stages` as "sharpness:iterations[:xy],..." (e.g. "2:4,4:4,8:3,8:3"; None: the default)"""
+    mirror_hypotheses: bool = AlignConfig.mirror
+    """`AlignConfig.mirror`: also align from the heading mirrored about the line of sight (and its flip)"""
     max_score: float | None = None
     """`AlignConfig.max_score`: keep the start where the aligned silhouette explains the mask worse than this"""
     mask_threshold: float = RefineConfig.mask_threshold
@@ -72,6 +76,9 @@ class Args:
     oracle_from_learned: bool = False
     """with --refiner: also align to the ground-truth masks from the learned iterations' last pose
     (what a perfect mask would add after them)"""
+    segmenter_from_learned: bool = False
+    """with --refiner and --segmenter: also align to the segmenter's masks from the learned iterations'
+    last pose (the deployable row of the same)"""
     mirror: str = RefineConfig.mirror
     """`RefineConfig.mirror`: none, fine or all (the learned iterations also read mirrored crops)"""
     fine_views: int = RefineConfig.fine_views
@@ -184,6 +191,17 @@ def aligned(mesh, cfg: AlignConfig, seg, frames, init, threshold: float = Refine
     return np.stack(est), ms, conf, (iou if seg is not None else []), score, acc
 
 
+def parse_stages(text: str) -> tuple[tuple, ...]:
+    """"2:4,4:4:xy" -> ((2.0, 4), (4.0, 4, "xy")): `AlignConfig.stages` from the command line."""
+    stages = []
+    for part in text.split(","):
+        f = part.split(":")
+        if len(f) not in (2, 3) or (len(f) == 3 and f[2] != "xy"):
+            raise SystemExit(f"--stages: {part!r} is not sharpness:iterations[:xy]")
+        stages.append((float(f[0]), int(f[1]), *f[2:]))
+    return tuple(stages)
+
+
 def _iml_estimate(row: dict):
     """IML's estimate of a frame of `evaluate --json`: `est` of an IML-only run, `iml_est` of a
     pipeline run (None where the IML did not detect the robot)."""
@@ -211,7 +229,8 @@ def main(a: Args) -> list[dict]:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
     cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin,
-                      **({} if a.coarse else {"coarse_stages": ()}))
+                      mirror=a.mirror_hypotheses, **({} if a.coarse else {"coarse_stages": ()}),
+                      **({} if a.stages is None else {"stages": parse_stages(a.stages)}))
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))
     seg = None if a.segmenter is None else load_segmenter(a.segmenter, data.load_bop_model(a.data[0]))
@@ -222,12 +241,20 @@ def main(a: Args) -> list[dict]:
         init = starts[name]
         if ref is not None:
             rows += learned(a, ref, mesh, cfg, frames, init, gt, name, per_frame, sc, fine)
-            if a.oracle_from_learned:
-                last = np.asarray(per_frame[-1]["learned_iterates"])[:, -1]
-                est, ms, *_ = aligned(mesh, cfg, None, frames, last)
-                per_frame[-1]["learned_then_oracle"] = est.tolist()
-                rows.append({"start": name, "stage": "learned + alignment (gt masks)", "frames": len(gt), "stride": a.stride,
-                             **summary(est, gt, ms)})
+            last = np.asarray(per_frame[-1]["learned_iterates"])[:, -1]
+            for key, kind, on in (("oracle", "gt masks", a.oracle_from_learned),
+                                  ("segmenter", "segmenter masks", a.segmenter_from_learned and seg is not None)):
+                if not on:
+                    continue
+                est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if key == "segmenter" else None, frames, last,
+                                                         a.mask_threshold)
+                per_frame[-1][f"learned_then_{key}"] = est.tolist()
+                per_frame[-1][f"learned_then_{key}_score"] = score
+                per_frame[-1][f"learned_then_{key}_flip_confidence"] = conf
+                per_frame[-1][f"learned_then_{key}_mask_iou"] = iou
+                rows.append({"start": name, "stage": f"learned + alignment ({kind})", "frames": len(gt), "stride": a.stride,
+                             **summary(est, gt, ms), "accepted": int(np.sum(acc)),
+                             **({"median_mask_iou": float(np.median(iou))} if iou else {})})
                 print(json.dumps(rows[-1]), flush=True)
         kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
         for kind in kinds:
