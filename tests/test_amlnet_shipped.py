@@ -188,3 +188,43 @@ def test_shipped_front_back_scorers(tiny_bop_set, name, min_right, sideways):
     assert sum(right) >= min_right, right
     if sideways is not None:
         assert np.median(np.abs(np.asarray(side) - 0.5)) < sideways, side
+
+
+def test_shipped_segmenter(tiny_bop_set):
+    """The segmenter for the cascade's end (opt-in: `evaluate --segmenter`): within the size budget,
+    the Pioneer's (another robot is refused), and on the tiny set's randomised-look frames its mask in
+    the alignment's crop at the true pose overlaps the true mask (median IoU when shipped: see
+    BENCHMARKS.md; an untrained segmenter's is 0); `load_stage` aligns to it with `SEGMENTER_ALIGN`."""
+    import dataclasses
+
+    from rhaml_jax import crop as _crop
+    from rhaml_jax import render
+    from rhaml_jax.data import load_bop_model, load_mask, load_rgb, read_bop
+    from rhaml_jax.errors import RhamlError
+    from rhaml_jax.refine import SEGMENTER_ALIGN, load_segmenter, load_stage, observed_mask
+    from rhaml_jax.refine import segmenter as G
+    from rhaml_jax.refine.alignment import crop_box
+
+    path = shipped_checkpoint("segmenter_fine_cpu")
+    size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    assert size <= 20e6, f"{path}: {size / 1e6:.1f} MB"
+    model = load_bop_model(tiny_bop_set)
+    seg = load_segmenter(path, model)
+    assert seg.cfg == G.get_segmenter_config("segmenter_fine_cpu")
+    with pytest.raises(RhamlError, match="checkpoint is for robot"):
+        load_segmenter(path, dataclasses.replace(model, vertices=model.vertices * 1.5))
+    mesh = render.as_mesh(model)
+    S = seg.cfg.crop
+    iou = []
+    for f in read_bop(tiny_bop_set, "train"):
+        if not f.observed:
+            continue
+        acfg = dataclasses.replace(SEGMENTER_ALIGN, camera_height_m=float(f.camera_height_m))
+        box = crop_box(mesh, jnp.asarray(f.K, jnp.float32), jnp.asarray(f.xypsi, jnp.float32), acfg)
+        pred = np.asarray(observed_mask(seg, jnp.asarray(load_rgb(f.rgb), jnp.float32) / 255, box)) > 0.5
+        true = np.asarray(_crop.crop_image(jnp.asarray(load_mask(f.mask), jnp.float32)[..., None], box, S, S))[..., 0] > 0.5
+        iou.append((pred & true).sum() / max((pred | true).sum(), 1))
+    assert np.median(iou) > 0.7, np.round(iou, 2)
+    cfg, stage = load_stage(segmenter=path)
+    assert cfg.align == SEGMENTER_ALIGN and stage.segmenter.cfg.name == "segmenter_fine_cpu"
+    assert load_stage()[0].align is None  # the default stage: no alignment

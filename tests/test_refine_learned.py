@@ -528,3 +528,14 @@ def test_an_unconverged_cascade_keeps_the_initial_pose(run, bop_set):
         assert settled or (float(r.flip_prob) == -1.0 and np.all(np.asarray(r.roll_pitch) == 0))
     with pytest.raises(RhamlError, match="RefineConfig.max_final_step"):
         RefineConfig(max_final_step=0.0)
+
+
+def test_the_scorers_flip_probability_follows_an_alignment_that_turns_the_heading():
+    """After the alignment turns the heading by more than 90 deg, the scorer's P(other way) is read
+    for the new heading (1 - p); a smaller turn, or no scorer (-1), leaves it."""
+    from rhaml_jax.refine import _flip_prob_after
+
+    p = jnp.array([0.1, 0.1, 0.1, -1.0])
+    before = jnp.array([3.0, 3.0, -3.0, 0.0])
+    after = jnp.array([3.0 - np.pi, 3.0 + 1.0, -3.0 + 3.0, np.pi])  # turned by 180, 57, 172, 180 deg
+    np.testing.assert_allclose(_flip_prob_after(p, before, after), [0.9, 0.1, 0.9, -1.0], atol=1e-6)

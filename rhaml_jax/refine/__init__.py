@@ -35,7 +35,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "SEGMENTER_ALIGN", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -236,6 +236,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             r = align(mesh, mask, K, xyp, acfg)
         else:
             r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
+        flip_prob = _flip_prob_after(flip_prob, xyp[2], r.xypsi[2])
         xyp, score, conf = r.xypsi, r.score, r.flip_confidence
     keep_init = declined | ~converged
     xyp = jnp.where(keep_init, init, xyp)
@@ -247,6 +248,14 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
     return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(keep_init, 0.0, conf), score, its,
                         jnp.where(keep_init, -1.0, flip_prob), converged | declined)
+
+
+def _flip_prob_after(flip_prob, psi_before, psi_after):
+    """The scorer's P(the heading faces the other way) (-1: no scorer ran) for the heading after
+    the alignment: where the alignment turned it by more than 90 deg, the other way is the scorer's
+    side, so 1 - flip_prob."""
+    turned = jnp.abs(jnp.arctan2(jnp.sin(psi_after - psi_before), jnp.cos(psi_after - psi_before))) > jnp.pi / 2
+    return jnp.where((flip_prob >= 0) & turned, 1.0 - flip_prob, flip_prob)
 
 
 def _final_step(a, b):
@@ -436,6 +445,14 @@ DEFAULT_FLIP_THRESHOLD = 0.8
 """`RefineConfig.flip_threshold` that `load_stage` sets with `DEFAULT_SCORER` (chosen on the validation looks' offline sweep)"""
 
 
+SEGMENTER_ALIGN = AlignConfig(coarse_stages=(), stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)))
+"""`RefineConfig.align` that `load_stage` sets with a segmenter: the alignment from the cascade's
+end (its position within centimetres, no coarse pass) in 14 steps instead of the default's 35.
+Measured from the default cascade's end, to ground-truth masks (BENCHMARKS.md, "A segmenter for
+the cascade's end"): |dx| 1.9 cm, 0 flips on the OOD validation circle (the default schedule:
+1.5 cm, 0 flips)"""
+
+
 def shipped_refiner(model=None) -> Refiner:
     """The default refiner shipped in the package (rhaml_jax/checkpoints/`DEFAULT_REFINER`), for the built-in robot."""
     from rhaml_jax.amlnet.checkpoint import shipped_checkpoint
@@ -464,7 +481,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     `DEFAULT_REFINER`, with the shipped `DEFAULT_SCORER` after its coarse iterations and then the
     shipped `DEFAULT_FINE_REFINERS` (`scorer` or `fine` "none": without them; given another refiner,
     a scorer or fine refiner runs only if named); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
-    silhouette alignment to its masks; with `scorer` (a checkpoint folder) by the heading search;
+    silhouette alignment to its masks (`SEGMENTER_ALIGN`); with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder, or several: an ensemble) by that refiner's iterations (a cascade). `mirror`:
     `RefineConfig.mirror` (None: `DEFAULT_MIRROR` for a left-right symmetric robot, "none" for
     another; mirroring named for an asymmetric robot is refused)."""
@@ -476,7 +493,7 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     check = robot if check_robot else None
     refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
     seg = None if segmenter is None else load_segmenter(segmenter, check)
-    cfg = RefineConfig(mirror=_mirror_setting(robot, mirror))
+    cfg = RefineConfig(mirror=_mirror_setting(robot, mirror), align=None if seg is None else SEGMENTER_ALIGN)
     if scorer is None and ckpt_dir is None:
         scorer = shipped_checkpoint(DEFAULT_SCORER)
         cfg = dataclasses.replace(cfg, flip_threshold=DEFAULT_FLIP_THRESHOLD, post_iter=0)
