@@ -76,6 +76,9 @@ class Args:
     oracle_from_learned: bool = False
     """with --refiner: also align to the ground-truth masks from the learned iterations' last pose
     (what a perfect mask would add after them)"""
+    fine_after_align: tuple[int, ...] = ()
+    """with --refiner, --fine-refiner and --segmenter: a row per count N, the whole IR stage as `evaluate`
+    runs it (`refine` with the alignment to the segmenter's masks and `RefineConfig.fine_after_align` N)"""
     segmenter_from_learned: bool = False
     """with --refiner and --segmenter: also align to the segmenter's masks from the learned iterations'
     last pose (the deployable row of the same)"""
@@ -97,6 +100,9 @@ class Args:
     """a segmenter checkpoint (`train --stage segmenter`): also run the alignment to its masks of the images"""
     oracle: bool = True
     """run the alignment to the ground-truth masks (the oracle row)"""
+    from_start: bool = True
+    """run the alignments (to gt masks, to the segmenter's) from the start too (--no-from-start: only
+    the rows after the learned iterations)"""
     json: Path | None = None
 
 
@@ -158,6 +164,25 @@ def learned(a: Args, ref, mesh, cfg, frames, init, gt, name, per_frame, sc=None,
     for r in rows:
         print(json.dumps(r), flush=True)
     return rows
+
+
+def whole_stage(a: Args, ref, mesh, cfg: AlignConfig, frames, init, sc, fine, seg, n: int):
+    """`refine` as the pipeline runs it with a segmenter (the learned iterations, the alignment to its
+    masks, n fine iterations after it; declined or unconverged frames keep the start): (estimates (F, 3),
+    ms per frame)."""
+    rc = RefineConfig(align=cfg, n_iter=a.n_iter, flip_threshold=a.flip_threshold, post_iter=a.post_iter, fine_iter=a.fine_iter,
+                      max_final_step=a.max_final_step, mirror=a.mirror, fine_views=a.fine_views, fine_after_align=n,
+                      mask_threshold=a.mask_threshold)
+    f = jax.jit(lambda im, i, K: refine(ref, mesh, im, K, i, rc, segmenter=seg, scorer=sc, fine=fine).xypsi)
+    est, ms = [], []
+    for j, fr in enumerate(frames):
+        args = (jnp.asarray(data.load_rgb(fr.rgb), jnp.float32) / 255, jnp.asarray(init[j]), jnp.asarray(fr.K, jnp.float32))
+        if j == 0:
+            jax.block_until_ready(f(*args))
+        t = time.perf_counter()
+        est.append(np.asarray(jax.block_until_ready(f(*args))))
+        ms.append(1e3 * (time.perf_counter() - t))
+    return np.stack(est), ms
 
 
 def aligned(mesh, cfg: AlignConfig, seg, frames, init, threshold: float = RefineConfig.mask_threshold):
@@ -256,7 +281,13 @@ def main(a: Args) -> list[dict]:
                              **summary(est, gt, ms), "accepted": int(np.sum(acc)),
                              **({"median_mask_iou": float(np.median(iou))} if iou else {})})
                 print(json.dumps(rows[-1]), flush=True)
-        kinds = (["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])
+            for n in a.fine_after_align if seg is not None and fine is not None else ():
+                est, ms = whole_stage(a, ref, mesh, cfg, frames, init, sc, fine, seg, n)
+                per_frame.append({"start": name, "stage": f"fine_after_align {n}", "est": est.tolist()})
+                rows.append({"start": name, "stage": f"IR with the alignment (segmenter masks) + {n} fine", "frames": len(gt),
+                             "stride": a.stride, **summary(est, gt, ms)})
+                print(json.dumps(rows[-1]), flush=True)
+        kinds = ((["gt masks"] if a.oracle else []) + (["segmenter masks"] if seg is not None else [])) if a.from_start else []
         for kind in kinds:
             est, ms, conf, iou, score, acc = aligned(mesh, cfg, seg if kind == "segmenter masks" else None, frames, init,
                                                      a.mask_threshold)

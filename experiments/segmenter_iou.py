@@ -3,6 +3,7 @@ around the true pose (BENCHMARKS.md, "Refinement": the segmenter rows).
 
   python experiments/segmenter_iou.py --segmenter RUN --data SET [SET ...]        # median IoU per set
   python experiments/segmenter_iou.py --segmenter RUN --data TRAINING_SET --areas  # threshold vs area, val split
+  python experiments/segmenter_iou.py --segmenter RUN --data VAL_SET --areas --split test --margins 1.4
 
 Per set: every 25th frame with the robot in view (the first 20 whose mask has at least 300 px),
 the median IoU of the mask thresholded at 0.5. With --areas, on the val split (every 4th frame)
@@ -53,14 +54,17 @@ def main() -> None:
     p.add_argument("--segmenter", type=Path, required=True)
     p.add_argument("--data", type=Path, nargs="+", required=True)
     p.add_argument("--areas", action="store_true", help="threshold vs area on the val split (margins 1.4, 2.5)")
+    p.add_argument("--split", default="val", help="with --areas: the split (e.g. test: a validation look's scenes)")
+    p.add_argument("--margins", type=float, nargs="+", default=[1.4, 2.5], help="with --areas: the crop margins")
     a = p.parse_args()
     seg = load_segmenter(a.segmenter)
     for root in a.data:
         if a.areas:
-            frames = [f for f in data.read_bop(root, "val") if f.observed][::4]
-            P, T = crops(seg, root, frames, (1.4, 2.5))
-            for k, margin in enumerate((1.4, 2.5)):
-                pk, tk = P[k::2], T[k::2] > 0.5
+            frames = [f for f in data.read_bop(root, a.split) if f.observed][::4]
+            P, T = crops(seg, root, frames, a.margins)
+            n = len(a.margins)
+            for k, margin in enumerate(a.margins):
+                pk, tk = P[k::n], T[k::n] > 0.5
                 for thr in (0.2, 0.3, 0.4, 0.5):
                     h = pk > thr
                     print(f"{root} margin {margin} threshold {thr}: area ratio {h.sum() / tk.sum():.3f}, "

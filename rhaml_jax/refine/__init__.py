@@ -102,6 +102,9 @@ class RefineConfig:
     coarse step moved the range by a median 0.14-0.19 % on ours, far more on one-paint robots), and
     the pose graph fuses such frames better from the IML's estimate (BENCHMARKS.md, "A convergence
     check for the refiner")"""
+    fine_after_align: int = 0
+    """iterations of the fine refiner after the alignment (with a fine refiner and an alignment): the
+    alignment reads the heading from the outline, the fine refiner the position at that heading"""
     mask_threshold: float = 0.3
     """a segmenter's mask is thresholded here for the alignment: at 0.3 the masks of the
     segmenter_cpu run in BENCHMARKS.md have the true area on validation crops (area ratio 0.996
@@ -118,6 +121,8 @@ class RefineConfig:
             raise RhamlError(f"RefineConfig.flip_threshold must be in [0, 1], got {self.flip_threshold}")
         if self.post_iter < 0:
             raise RhamlError(f"RefineConfig.post_iter must be >= 0, got {self.post_iter}")
+        if self.fine_after_align < 0:
+            raise RhamlError(f"RefineConfig.fine_after_align must be >= 0, got {self.fine_after_align}")
         if self.fine_iter < 0:
             raise RhamlError(f"RefineConfig.fine_iter must be >= 0, got {self.fine_iter}")
         if not 1 <= self.fine_views <= len(_VIEW_SIGNS):
@@ -139,7 +144,8 @@ class RefineResult(NamedTuple):
     score: jax.Array  # () the alignment's final loss (0 without alignment)
     iterates: jax.Array  # (n_iter + 1, 3) planar pose after each learned iteration (row 0: the initial one);
     #                      with a scorer (n_iter + 2 + post_iter, 3): then the heading search, then the post iterations;
-    #                      with a fine refiner fine_iter more rows: its iterations
+    #                      with a fine refiner fine_iter more rows: its iterations (and after the
+    #                      alignment fine_after_align more)
     flip_prob: jax.Array  # () the scorer's probability that the heading faces the other way (-1: no scorer ran)
     converged: jax.Array  # () bool: the learned iterations settled (RefineConfig.max_final_step); if not, the
     #                       initial pose is returned as for a declined start (always True without a refiner)
@@ -162,7 +168,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     whose updates each iteration averages, `check_ensemble`). Then the silhouette
     alignment (cfg.align, AlignConfig() when None): with a `segmenter`, to its mask of the
     image (always run); else with a refiner, to the refiner's mask head (only if cfg.align);
-    else to the observed mask `mask` (H, W) in [0, 1] (then required). A declined start (behind the
+    else to the observed mask `mask` (H, W) in [0, 1] (then required); then cfg.fine_after_align
+    more iterations of the fine refiner, if any. A declined start (behind the
     camera, projecting outside the image, non-finite) returns the initial pose, never NaN; so does
     an unconverged one (cfg.max_final_step: its last coarse iteration still moved the range).
     Differentiable wrt init_xypsi and the refiner's params (the alignment's increments are
@@ -238,6 +245,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
             r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
         flip_prob = _flip_prob_after(flip_prob, xyp[2], r.xypsi[2])
         xyp, score, conf = r.xypsi, r.score, r.flip_confidence
+        if refiner is not None and fine is not None and cfg.fine_after_align:
+            xyp, roll_pitch = learned(xyp, cfg.fine_after_align, fine, cfg.mirror != "none")
     keep_init = declined | ~converged
     xyp = jnp.where(keep_init, init, xyp)
     its = jnp.stack(iterates)
