@@ -539,3 +539,22 @@ def test_the_scorers_flip_probability_follows_an_alignment_that_turns_the_headin
     before = jnp.array([3.0, 3.0, -3.0, 0.0])
     after = jnp.array([3.0 - np.pi, 3.0 + 1.0, -3.0 + 3.0, np.pi])  # turned by 180, 57, 172, 180 deg
     np.testing.assert_allclose(_flip_prob_after(p, before, after), [0.9, 0.1, 0.9, -1.0], atol=1e-6)
+
+
+def test_fine_iterations_after_the_alignment(run, bop_set):
+    """`RefineConfig.fine_after_align`: that many more rows of `iterates`, the fine refiner's
+    iterations from the aligned pose; the rows before are the run without them, whose result is the
+    aligned pose; a negative count is refused."""
+    from rhaml_jax.refine import AlignConfig
+
+    out, coarse, fine, mesh, f, img, h, init = _micro_cascade(run, bop_set)
+    acfg = AlignConfig(crop=32, stages=((2.0, 2),), coarse_stages=())
+    cfg = RefineConfig(camera_height_m=h, align=acfg, n_iter=2, fine_iter=1, max_final_step=None)
+    aligned = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
+    after = refine(coarse, mesh, img, f.K, init, dataclasses.replace(cfg, fine_after_align=2), fine=fine)
+    assert aligned.iterates.shape == (4, 3) and after.iterates.shape == (6, 3)
+    np.testing.assert_allclose(np.asarray(after.iterates[:4]), np.asarray(aligned.iterates), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(after.xypsi), np.asarray(after.iterates[-1]), atol=1e-6)
+    assert np.abs(np.asarray(after.iterates[4] - aligned.xypsi)).max() > 1e-4  # moved from the aligned pose
+    with pytest.raises(RhamlError, match="fine_after_align"):
+        RefineConfig(fine_after_align=-1)
