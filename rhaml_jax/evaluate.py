@@ -62,8 +62,13 @@ class Args:
     """refiner checkpoint folder (the ir module; default: the shipped `refine.DEFAULT_REFINER`)"""
     segmenter: Path | None = None
     """segmenter checkpoint folder (`train --stage segmenter`; the ir module: after the learned
-    iterations, the silhouette alignment to its masks of the image; default: none. Experimental:
-    none is shipped, see BENCHMARKS.md "Refinement")"""
+    iterations, the silhouette alignment to its masks of the image, `refine.SEGMENTER_ALIGN`, then
+    `RefineConfig.fine_after_align` fine iterations; default: none. Shipped:
+    rhaml_jax/checkpoints/segmenter_fine_cpu, see BENCHMARKS.md "A segmenter for the cascade's end")"""
+    fine_after_align: int | None = None
+    """with --segmenter: the fine refiner's iterations after the alignment (`RefineConfig.fine_after_align`; None: its default)"""
+    mask_threshold: float | None = None
+    """with --segmenter: its mask is thresholded here (`RefineConfig.mask_threshold`; None: its default)"""
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; "none": without; default: the
@@ -175,7 +180,8 @@ def _load(args: Args, modules):
                                                     segmenter=args.segmenter, scorer=args.scorer, fine=args.fine_refiner,
                                                     mirror=args.refine_mirror)
         given = {k: v for k, v in (("fine_iter", args.fine_iter), ("flip_threshold", args.flip_threshold),
-                                   ("post_iter", args.post_iter)) if v is not None}
+                                   ("post_iter", args.post_iter), ("fine_after_align", args.fine_after_align),
+                                   ("mask_threshold", args.mask_threshold)) if v is not None}
         if args.scorer_mirror:
             iml.check_mirror_symmetric(robot, path, "--scorer-mirror")
             given["scorer_mirror"] = True

@@ -549,7 +549,7 @@ def test_fine_iterations_after_the_alignment(run, bop_set):
 
     out, coarse, fine, mesh, f, img, h, init = _micro_cascade(run, bop_set)
     acfg = AlignConfig(crop=32, stages=((2.0, 2),), coarse_stages=())
-    cfg = RefineConfig(camera_height_m=h, align=acfg, n_iter=2, fine_iter=1, max_final_step=None)
+    cfg = RefineConfig(camera_height_m=h, align=acfg, n_iter=2, fine_iter=1, max_final_step=None, fine_after_align=0)
     aligned = refine(coarse, mesh, img, f.K, init, cfg, fine=fine)
     after = refine(coarse, mesh, img, f.K, init, dataclasses.replace(cfg, fine_after_align=2), fine=fine)
     assert aligned.iterates.shape == (4, 3) and after.iterates.shape == (6, 3)
