@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Issue 15, session 47 (BENCHMARKS.md, "A segmenter for the cascade's end"): the observed-mask segmenter
+# trained on crops around the residuals the refiner cascade leaves (config segmenter_fine_cpu, RGB, on the
+# scorer's image mix: experiments/flip_wide.sh makes s44_flip_mix), then the alignment to its masks from
+# the default cascade's end on one circle of each validation look (beside the alignment to ground-truth
+# masks), the validation sets with it (the choice), and the test sets (reported only). Every stage resumes.
+#   bash experiments/segmenter_fine.sh DATA_ROOT RUNS_ROOT
+set -euo pipefail
+DATA="${1:-/work/data}"; RUNS="${2:-/work/runs/s47}"
+PY="${PYTHON:-python}"
+. "$(dirname "$0")/_test_sets.sh"
+C=rhaml_jax/checkpoints
+"$PY" -m rhaml_jax.train --stage segmenter --config segmenter_fine_cpu --data "$DATA/s44_flip_mix" --out "$RUNS/seg_fine" \
+  --steps 3500 --batch 32 --lr 2e-3 --warmup 100 --val-every 500 --no-progress \
+  $( [ -d "$RUNS/seg_fine/checkpoints" ] && echo --resume ) > "$RUNS/seg_fine.log" 2>&1
+[ -d "$RUNS/export/seg_fine" ] || "$PY" -c "from rhaml_jax.refine.segmenter import export_segmenter as e; e('$RUNS/seg_fine', '$RUNS/export/seg_fine')"
+SEG="$RUNS/export/seg_fine"
+# seg_bench NAME [BENCH_ARGS...]: the default cascade from the paper's noise (every 10th frame) on one circle of
+# each look, then SEGMENTER_ALIGN's schedule to the ground-truth masks and to the segmenter's -> $RUNS/NAME_LOOK.json
+seg_bench() {
+  local name=$1 look set
+  shift
+  for look in ours:val_scen_s7_500/circle ood:val_ood/circle grey:val_mono/circle_grey cad_grey:val_mono_cad/circle_grey \
+              purple:val_mono/circle_purple cad_purple:val_mono_cad/circle_purple; do
+    set=${look#*:}; look=${look%%:*}
+    [ -f "$RUNS/${name}_$look.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set" --starts noise --stride 10 \
+      --no-oracle --mirror fine --refiner $C/refiner_paint_cpu --fine-refiner $C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu \
+      --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --fine-iter 2 --oracle-from-learned \
+      --segmenter "$SEG" --segmenter-from-learned --no-coarse --stages "2:4,4:4,8:3,8:3" "$@" \
+      --json "$RUNS/${name}_$look.json" > "$RUNS/${name}_$look.log" 2>&1
+  done
+}
+seg_bench seg_bench
+# the same at mask threshold 0.4 (where the masks have the true area on the validation looks:
+# experiments/segmenter_iou.py --areas --split test --margins 1.4), with the whole IR stage and 2 fine iterations after
+seg_bench fa0.4 --mask-threshold 0.4 --no-from-start --fine-after-align 2 --no-oracle-from-learned
+# the choice: the validation sets with the alignment (its threshold 0.4, no fine iteration after it), against
+# session 46's default (label paint_both_s46): experiments/compare_validation.py paint_both_s46 seg0_s47
+LABEL=seg0_s47 EXTRA="--segmenter $SEG --fine-after-align 0 --mask-threshold 0.4" PY="$PY" DATA="$DATA" \
+  bash "$(dirname "$0")/validate_networks.sh" > "$RUNS/val_seg0.out" 2>&1
+# The test and held-out sets, reported only: the pipeline with the alignment, then issue 15's table
+BENCH_ARGS="--scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --segmenter $SEG --segmenter-from-learned
+  --mask-threshold 0.4 --no-coarse --stages 2:4,4:4,8:3,8:3 --no-from-start" REFINER=$C/refiner_paint_cpu \
+  test_sets seg "$C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu" 2 fine --segmenter "$SEG" --fine-after-align 0 \
+  --mask-threshold 0.4
