@@ -14,9 +14,11 @@ from `SegmenterConfig.margin_range` around initial poses drawn as `refine.train.
 (the paper's noise or our IML's errors, flips included), so the same network serves the
 alignment's wide coarse pass and its 1.4x fine pass.
 
-Experimental: aligned to its masks, the alignment still diverges (its coarse pass follows a
-band the network paints along the floor-wall line; BENCHMARKS.md, "Refinement"), so no
-checkpoint ships and nothing uses one by default.
+Shipped: `segmenter_fine_cpu` (RGB, trained around the residuals a refiner cascade leaves), for
+the alignment after the cascade (`refine.SEGMENTER_ALIGN`; BENCHMARKS.md, "A segmenter for the
+cascade's end"). Session 10's `segmenter_cpu`, aligned to from the IML's estimates, diverged (its
+coarse pass followed a band the network painted along the floor-wall line; BENCHMARKS.md,
+"Refinement").
 
 Pure functions over a params pytree: `init_params(cfg, key)`, `apply(cfg, params, crop)`; the
 `Segmenter` pytree (params + static cfg) passes through jit / vmap like `refine.Refiner`.
