@@ -56,6 +56,8 @@ class Args:
     """`AlignConfig.stages` as "sharpness:iterations[:xy],..." (e.g. "2:4,4:4,8:3,8:3"; None: the default)"""
     mirror_hypotheses: bool = AlignConfig.mirror
     """`AlignConfig.mirror`: also align from the heading mirrored about the line of sight (and its flip)"""
+    min_turn_deg: float = 0.0
+    """`AlignConfig.min_turn` in degrees: keep the start unless the alignment turns its heading by more"""
     max_score: float | None = None
     """`AlignConfig.max_score`: keep the start where the aligned silhouette explains the mask worse than this"""
     mask_threshold: float = RefineConfig.mask_threshold
@@ -254,7 +256,8 @@ def main(a: Args) -> list[dict]:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
     cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin,
-                      mirror=a.mirror_hypotheses, **({} if a.coarse else {"coarse_stages": ()}),
+                      mirror=a.mirror_hypotheses, min_turn=float(np.deg2rad(a.min_turn_deg)),
+                      **({} if a.coarse else {"coarse_stages": ()}),
                       **({} if a.stages is None else {"stages": parse_stages(a.stages)}))
     rows, per_frame = [], []
     ref = None if a.refiner is None else load_refiner(a.refiner, data.load_bop_model(a.data[0]))

@@ -138,3 +138,18 @@ def test_a_mask_no_pose_explains_is_not_followed():
     assert float(wrong.score) > 0.05
     assert bool(right.accepted) and float(right.score) <= 0.05
     assert bool(free.accepted) and not np.allclose(free.xypsi, init)
+
+
+def test_min_turn_keeps_a_start_whose_heading_the_alignment_does_not_turn():
+    """min_turn: from a start whose heading is right (its position off), the alignment turns the
+    heading by less than 4 deg and keeps the start exactly (accepted False); from a start 25 deg
+    off it turns the heading and is kept (accepted, the heading within 3 deg of the truth)."""
+    gt = np.array([3.0, 0.4, 0.7], np.float32)
+    starts = jnp.asarray(gt + np.array([[0.06, -0.03, 0.0], [0.03, 0.02, np.deg2rad(25.0)]], np.float32))
+    cfg = AlignConfig(crop=32, stages=((2.0, 4), (4.0, 4)), coarse_stages=(), debias_stages=0, min_turn=float(np.deg2rad(4.0)))
+    robot = mesh()
+    m = _masks(gt[None])[0]
+    r = jax.jit(jax.vmap(lambda i: align(robot, m, K, i, cfg)))(starts)
+    assert not bool(r.accepted[0]) and np.array_equal(np.asarray(r.xypsi[0]), np.asarray(starts[0]))
+    assert bool(r.accepted[1])
+    assert abs(np.rad2deg(np.arctan2(np.sin(r.xypsi[1, 2] - gt[2]), np.cos(r.xypsi[1, 2] - gt[2])))) < 3.0

@@ -106,6 +106,11 @@ class AlignConfig:
     the crop) is at most this; else keep the initial estimate (`AlignResult.accepted` False).
     For an observed mask that may be wrong (a segmenter's): a mask that no pose of the model
     explains is not followed (None: always accept)"""
+    min_turn: float = 0.0
+    """accept the result only if it turned the heading by more than this (rad) from the initial
+    estimate; else keep the initial estimate (0: no such condition). After a refiner cascade,
+    which reads the position better than the alignment to a segmenter's mask wherever it reads the
+    heading, the alignment is kept for the headings the cascade could not read (`refine.SEGMENTER_ALIGN`)"""
 
 
 class AlignResult(NamedTuple):
@@ -119,7 +124,7 @@ class AlignResult(NamedTuple):
     hypotheses: jax.Array  # (N, 3) final planar pose of every hypothesis
     scores: jax.Array  # (N,) their final losses
     box: jax.Array  # (4,) the crop box (full-image px)
-    accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score)
+    accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score, turned by more than min_turn)
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -292,13 +297,13 @@ def align_to(mesh, target_in, K, init_xypsi, width: int, height: int, cfg: Align
     start = init
     if cfg.coarse_stages:
         coarse = dataclasses.replace(cfg, margin=cfg.coarse_margin, stages=cfg.coarse_stages, flip=False, mirror=False,
-                                     perturbed=0, debias_stages=0, coarse_stages=(), max_score=None)
+                                     perturbed=0, debias_stages=0, coarse_stages=(), max_score=None, min_turn=0.0)
         cbox = jax.lax.stop_gradient(crop_box(mesh, K, safe, coarse))
         start = align_crop(mesh, target_in(cbox), cbox, K, init, width, height, coarse).xypsi
         safe = jnp.where(declined, safe, start)
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
     r = align_crop(mesh, target_in(box), box, K, start, width, height, cfg)
-    if cfg.coarse_stages and cfg.max_score is not None:  # a rejected alignment keeps the estimate from before the coarse pass too
+    if cfg.coarse_stages and (cfg.max_score is not None or cfg.min_turn > 0):  # a rejected alignment keeps the estimate from before the coarse pass too
         xyp = jnp.where(r.accepted, r.xypsi, init)
         r = r._replace(xypsi=xyp, pose=_planar_pose(xyp))
     return r
@@ -379,6 +384,8 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
         jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))))
     out = out.at[2].set(jnp.arctan2(jnp.sin(out[2]), jnp.cos(out[2])))  # wrapped; gradient 1
     accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
+    if cfg.min_turn > 0:
+        accepted = accepted & (jnp.abs(jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))) > cfg.min_turn)
     out = jnp.where(accepted, out, init)
     conf = jnp.where(accepted, conf, 0.0)
     return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted)
