@@ -153,3 +153,19 @@ def test_min_turn_keeps_a_start_whose_heading_the_alignment_does_not_turn():
     assert not bool(r.accepted[0]) and np.array_equal(np.asarray(r.xypsi[0]), np.asarray(starts[0]))
     assert bool(r.accepted[1])
     assert abs(np.rad2deg(np.arctan2(np.sin(r.xypsi[1, 2] - gt[2]), np.cos(r.xypsi[1, 2] - gt[2])))) < 3.0
+
+
+def test_max_shift_keeps_a_start_the_alignment_moves_too_far():
+    """max_shift: from a start 10 % short of the true range the alignment moves the position by
+    more than 3 % of the range: kept with no limit, refused (the start returned) with 0.03; a start
+    2 % short is followed either way."""
+    gt = np.array([3.0, 0.4, 0.7], np.float32)
+    starts = jnp.asarray(np.stack([np.r_[gt[:2] * 0.9, gt[2]], np.r_[gt[:2] * 0.98, gt[2]]]).astype(np.float32))
+    free = AlignConfig(crop=48, stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)), coarse_stages=(), debias_stages=2)
+    robot = mesh()
+    m = _masks(gt[None])[0]
+    f = jax.jit(lambda c: jax.vmap(lambda i: align(robot, m, K, i, c))(starts), static_argnums=0)
+    a, b = f(free), f(dataclasses.replace(free, max_shift=0.03))
+    assert bool(a.accepted[0]) and np.hypot(*(a.xypsi[0, :2] - starts[0, :2])) > 0.03 * np.hypot(*starts[0, :2])
+    assert not bool(b.accepted[0]) and np.array_equal(np.asarray(b.xypsi[0]), np.asarray(starts[0]))
+    assert bool(a.accepted[1]) and bool(b.accepted[1]) and np.allclose(a.xypsi[1], b.xypsi[1])

@@ -454,11 +454,14 @@ DEFAULT_FLIP_THRESHOLD = 0.8
 """`RefineConfig.flip_threshold` that `load_stage` sets with `DEFAULT_SCORER` (chosen on the validation looks' offline sweep)"""
 
 
-SEGMENTER_ALIGN = AlignConfig(coarse_stages=(), stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)), min_turn=float(np.deg2rad(4.0)))
+SEGMENTER_ALIGN = AlignConfig(coarse_stages=(), stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)), min_turn=float(np.deg2rad(4.0)),
+                              max_shift=0.03)
 """`RefineConfig.align` that `load_stage` sets with a segmenter: the alignment from the cascade's
 end (its position within centimetres, no coarse pass) in 14 steps instead of the default's 35,
 kept only where it turns the heading by more than 4 deg (`AlignConfig.min_turn`: where the
-cascade read the heading, it reads the position better than the alignment). Measured from the
+cascade read the heading, it reads the position better than the alignment) and moves the
+position by at most 3 % of the range (`AlignConfig.max_shift`: a longer move follows a wrong
+mask); both chosen on the validation runs (BENCHMARKS.md). Measured from the
 default cascade's end (BENCHMARKS.md, "A segmenter for the cascade's end"): to ground-truth masks,
 |dx| 1.9 cm, 0 flips on the OOD validation circle (the default schedule: 1.5 cm, 0 flips); to the
 segmenter's masks, the OOD circle's |dpsi| 17.5 -> 3.5 deg, our circle's untouched"""

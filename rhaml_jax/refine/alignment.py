@@ -111,6 +111,10 @@ class AlignConfig:
     estimate; else keep the initial estimate (0: no such condition). After a refiner cascade,
     which reads the position better than the alignment to a segmenter's mask wherever it reads the
     heading, the alignment is kept for the headings the cascade could not read (`refine.SEGMENTER_ALIGN`)"""
+    max_shift: float | None = None
+    """accept the result only if it moved the position by at most this fraction of the initial
+    estimate's range; else keep the initial estimate (None: no such condition). From a cascade's
+    end, within centimetres, a longer move follows a wrong mask (`refine.SEGMENTER_ALIGN`)"""
 
 
 class AlignResult(NamedTuple):
@@ -124,7 +128,8 @@ class AlignResult(NamedTuple):
     hypotheses: jax.Array  # (N, 3) final planar pose of every hypothesis
     scores: jax.Array  # (N,) their final losses
     box: jax.Array  # (4,) the crop box (full-image px)
-    accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score, turned by more than min_turn)
+    accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score, turned by more than
+    #                       min_turn, moved by at most max_shift)
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -297,13 +302,15 @@ def align_to(mesh, target_in, K, init_xypsi, width: int, height: int, cfg: Align
     start = init
     if cfg.coarse_stages:
         coarse = dataclasses.replace(cfg, margin=cfg.coarse_margin, stages=cfg.coarse_stages, flip=False, mirror=False,
-                                     perturbed=0, debias_stages=0, coarse_stages=(), max_score=None, min_turn=0.0)
+                                     perturbed=0, debias_stages=0, coarse_stages=(), max_score=None, min_turn=0.0,
+                                     max_shift=None)
         cbox = jax.lax.stop_gradient(crop_box(mesh, K, safe, coarse))
         start = align_crop(mesh, target_in(cbox), cbox, K, init, width, height, coarse).xypsi
         safe = jnp.where(declined, safe, start)
     box = jax.lax.stop_gradient(crop_box(mesh, K, safe, cfg))
     r = align_crop(mesh, target_in(box), box, K, start, width, height, cfg)
-    if cfg.coarse_stages and (cfg.max_score is not None or cfg.min_turn > 0):  # a rejected alignment keeps the estimate from before the coarse pass too
+    if cfg.coarse_stages and (cfg.max_score is not None or cfg.min_turn > 0 or cfg.max_shift is not None):
+        # a rejected alignment keeps the estimate from before the coarse pass too
         xyp = jnp.where(r.accepted, r.xypsi, init)
         r = r._replace(xypsi=xyp, pose=_planar_pose(xyp))
     return r
@@ -386,6 +393,8 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
     if cfg.min_turn > 0:
         accepted = accepted & (jnp.abs(jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))) > cfg.min_turn)
+    if cfg.max_shift is not None:
+        accepted = accepted & (jnp.hypot(*(xyp_best[:2] - init[:2])) <= cfg.max_shift * jnp.hypot(init[0], init[1]))
     out = jnp.where(accepted, out, init)
     conf = jnp.where(accepted, conf, 0.0)
     return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted)
