@@ -69,6 +69,9 @@ class Args:
     """with --segmenter: the fine refiner's iterations after the alignment (`RefineConfig.fine_after_align`; None: its default)"""
     mask_threshold: float | None = None
     """with --segmenter: its mask is thresholded here (`RefineConfig.mask_threshold`; None: its default)"""
+    align_gates: bool = True
+    """with --segmenter: keep the alignment's result only where it turns the heading and stays near
+    (`refine.SEGMENTER_ALIGN`'s `min_turn` and `max_shift`); --no-align-gates: it always stands"""
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; "none": without; default: the
@@ -185,6 +188,8 @@ def _load(args: Args, modules):
         if args.scorer_mirror:
             iml.check_mirror_symmetric(robot, path, "--scorer-mirror")
             given["scorer_mirror"] = True
+        if not args.align_gates and refiner.align is not None:
+            given["align"] = dataclasses.replace(refiner.align, min_turn=0.0, max_shift=None)
         refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step, **given)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,

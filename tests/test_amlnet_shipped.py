@@ -227,4 +227,13 @@ def test_shipped_segmenter(tiny_bop_set):
     assert np.median(iou) > 0.7, np.round(iou, 2)
     cfg, stage = load_stage(segmenter=path)
     assert cfg.align == SEGMENTER_ALIGN and stage.segmenter.cfg.name == "segmenter_fine_cpu"
+    assert SEGMENTER_ALIGN.min_turn > 0 and SEGMENTER_ALIGN.max_shift is not None
+    import tyro
+
+    from rhaml_jax import evaluate
+
+    for flags, gated in (([], True), (["--no-align-gates"], False)):  # evaluate's IR stage, with and without the gates
+        args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--segmenter", str(path), *flags])
+        align = evaluate._load(args, ("iml", "ir"))[0].refiner.align
+        assert (align == SEGMENTER_ALIGN) == gated and align.stages == SEGMENTER_ALIGN.stages
     assert load_stage()[0].align is None  # the default stage: no alignment
