@@ -233,7 +233,7 @@ def test_shipped_segmenter(tiny_bop_set):
     from rhaml_jax import evaluate
 
     for flags, gated in (([], True), (["--no-align-gates"], False)):  # evaluate's IR stage, with and without the gates
-        args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--segmenter", str(path), *flags])
+        args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--zoom-mirror", "--segmenter", str(path), *flags])
         align = evaluate._load(args, ("iml", "ir"))[0].refiner.align
         assert (align == SEGMENTER_ALIGN) == gated and align.stages == SEGMENTER_ALIGN.stages
     assert load_stage()[0].align is None  # the default stage: no alignment
