@@ -1,4 +1,4 @@
-# Issue 15's blocks shared by the refiner scripts (sourced; need DATA, RUNS, PY).
+# Issue 15's blocks shared by the refiner scripts (sourced; need DATA, RUNS, PY; look_bench also C, the checkpoints folder).
 #
 # refiner_run RUN CONFIG DATA_SET INIT SEED [TRAIN_ARGS...]: `train --stage refiner` at the refiners'
 # rate, warm-up, batch and checkpointing (resumed when the run exists), then its export to $RUNS/export/RUN.
@@ -18,6 +18,20 @@ val_bench() {
   for s in 7 8; do
     [ -f "$RUNS/${name}_s$s.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/val_scen_s${s}_500/circle" \
       "$DATA/val_scen_s${s}_500/sine" --stride 10 --no-oracle "$@" --json "$RUNS/${name}_s$s.json"
+  done
+}
+# look_bench NAME [BENCH_ARGS...]: the cascade from the paper's noise (every 10th frame) on one circle
+# of each look: ours (seed 7), OOD (seed 1), one paint grey and purple, and the same two with the
+# robot's own model (val_mono_cad) -> $RUNS/NAME_LOOK.json (kept: a rerun skips it)
+look_bench() {
+  local name=$1 look set
+  shift
+  for look in ours:val_scen_s7_500/circle ood:val_ood/circle grey:val_mono/circle_grey cad_grey:val_mono_cad/circle_grey \
+              purple:val_mono/circle_purple cad_purple:val_mono_cad/circle_purple; do
+    set=${look#*:}; look=${look%%:*}
+    [ -f "$RUNS/${name}_$look.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set" --starts noise --stride 10 \
+      --no-oracle --mirror fine --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --fine-iter 2 "$@" \
+      --json "$RUNS/${name}_$look.json" > "$RUNS/${name}_$look.log" 2>&1
   done
 }
 # test_sets, the test-set block: the whole

@@ -3,7 +3,7 @@
 # refiner fine-tuned 5,000 steps with their renders repainted half the time (`RefinerConfig.paint_prob`
 # 0.5, configs refiner_paint_cpu / refiner_fine_paint_cpu) on the scorer's image mix (half the robots of
 # s44_flip_mono in one paint, with session 40's v1 + v3: experiments/flip_wide.sh makes it), both at
-# once; then the cascade from the paper's noise on one circle of each validation look (paint_bench).
+# once; then the cascade from the paper's noise on one circle of each validation look (look_bench, experiments/_test_sets.sh).
 # Every stage resumes.
 #   bash experiments/refiner_paint.sh DATA_ROOT RUNS_ROOT
 set -euo pipefail
@@ -16,25 +16,11 @@ refiner_run paint refiner_paint_cpu s44_flip_mix $C/refiner_cpu 46 --steps 5000 
 refiner_run fine_paint refiner_fine_paint_cpu s44_flip_mix $C/refiner_fine_more_cpu 461 --steps 5000 --val-every 1000 \
   --val-batches 8 > "$RUNS/fine_paint.log" 2>&1 &
 wait
-# paint_bench NAME [BENCH_ARGS...]: the cascade from the paper's noise (every 10th frame) on one circle
-# of each look: ours (seed 7), OOD (seed 1), one paint grey and purple, and the same two with the
-# robot's own model (val_mono_cad) -> $RUNS/NAME_LOOK.json (kept: a rerun skips it)
-paint_bench() {
-  local name=$1 look set
-  shift
-  for look in ours:val_scen_s7_500/circle ood:val_ood/circle grey:val_mono/circle_grey cad_grey:val_mono_cad/circle_grey \
-              purple:val_mono/circle_purple cad_purple:val_mono_cad/circle_purple; do
-    set=${look#*:}; look=${look%%:*}
-    [ -f "$RUNS/${name}_$look.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set" --starts noise --stride 10 \
-      --no-oracle --mirror fine --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --fine-iter 2 "$@" \
-      --json "$RUNS/${name}_$look.json" > "$RUNS/${name}_$look.log" 2>&1
-  done
-}
 FINE=($C/refiner_fine_more_cpu $C/refiner_fine_native_cpu)
-paint_bench bench_default --refiner $C/refiner_cpu --fine-refiner "${FINE[@]}"
-paint_bench bench_coarse --refiner "$RUNS/export/paint" --fine-refiner "${FINE[@]}"
-paint_bench bench_both --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint" $C/refiner_fine_native_cpu
-paint_bench bench_paint --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint"
+look_bench bench_default --refiner $C/refiner_cpu --fine-refiner "${FINE[@]}"
+look_bench bench_coarse --refiner "$RUNS/export/paint" --fine-refiner "${FINE[@]}"
+look_bench bench_both --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint" $C/refiner_fine_native_cpu
+look_bench bench_paint --refiner "$RUNS/export/paint" --fine-refiner "$RUNS/export/fine_paint"
 # The test and held-out sets, reported only (after the choice on validation: `compare_validation.py
 # wide_s45 paint_both_s46`): the whole pipeline with the defaults, which are now these refiners, then
 # issue 15's table with them and the default scorer (_test_sets.sh's test_sets).

@@ -15,20 +15,13 @@ C=rhaml_jax/checkpoints
   $( [ -d "$RUNS/seg_fine/checkpoints" ] && echo --resume ) > "$RUNS/seg_fine.log" 2>&1
 [ -d "$RUNS/export/seg_fine" ] || "$PY" -c "from rhaml_jax.refine.segmenter import export_segmenter as e; e('$RUNS/seg_fine', '$RUNS/export/seg_fine')"
 SEG="$RUNS/export/seg_fine"
-# seg_bench NAME [BENCH_ARGS...]: the default cascade from the paper's noise (every 10th frame) on one circle of
-# each look, then SEGMENTER_ALIGN's schedule to the ground-truth masks and to the segmenter's -> $RUNS/NAME_LOOK.json
+# seg_bench NAME [BENCH_ARGS...]: _test_sets.sh's look_bench (the default cascade from the paper's noise on one
+# circle of each look), then SEGMENTER_ALIGN's schedule to the ground-truth masks and to the segmenter's
 seg_bench() {
-  local name=$1 look set
+  local name=$1
   shift
-  for look in ours:val_scen_s7_500/circle ood:val_ood/circle grey:val_mono/circle_grey cad_grey:val_mono_cad/circle_grey \
-              purple:val_mono/circle_purple cad_purple:val_mono_cad/circle_purple; do
-    set=${look#*:}; look=${look%%:*}
-    [ -f "$RUNS/${name}_$look.json" ] || "$PY" experiments/bench_refine.py --data "$DATA/$set" --starts noise --stride 10 \
-      --no-oracle --mirror fine --refiner $C/refiner_paint_cpu --fine-refiner $C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu \
-      --scorer $C/scorer_flip_wide_cpu --flip-threshold 0.8 --post-iter 0 --fine-iter 2 --oracle-from-learned \
-      --segmenter "$SEG" --segmenter-from-learned --no-coarse --stages "2:4,4:4,8:3,8:3" "$@" \
-      --json "$RUNS/${name}_$look.json" > "$RUNS/${name}_$look.log" 2>&1
-  done
+  look_bench "$name" --refiner $C/refiner_paint_cpu --fine-refiner $C/refiner_fine_paint_cpu $C/refiner_fine_native_cpu \
+    --oracle-from-learned --segmenter "$SEG" --segmenter-from-learned --no-coarse --stages "2:4,4:4,8:3,8:3" "$@"
 }
 seg_bench seg_bench
 # the same at mask threshold 0.4 (where the masks have the true area on the validation looks:
