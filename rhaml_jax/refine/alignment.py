@@ -386,13 +386,13 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     L_other = jnp.min(jnp.where(dpsi > jnp.pi / 2, L, jnp.inf))
     conf = jnp.where(jnp.isfinite(L_other), (L_other - L_best) / jnp.maximum(L_other + L_best, 1e-12), 0.0)
     # straight-through: the increment carries no gradient (see the module docstring)
+    turn = jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))  # the heading's move, wrapped
     out = init + jax.lax.stop_gradient(xyp_best - init)
-    out = out.at[2].set(init[2] + jax.lax.stop_gradient(
-        jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))))
+    out = out.at[2].set(init[2] + jax.lax.stop_gradient(turn))
     out = out.at[2].set(jnp.arctan2(jnp.sin(out[2]), jnp.cos(out[2])))  # wrapped; gradient 1
     accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
     if cfg.min_turn > 0:
-        accepted = accepted & (jnp.abs(jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))) > cfg.min_turn)
+        accepted = accepted & (jnp.abs(turn) > cfg.min_turn)
     if cfg.max_shift is not None:
         accepted = accepted & (jnp.hypot(*(xyp_best[:2] - init[:2])) <= cfg.max_shift * jnp.hypot(init[0], init[1]))
     out = jnp.where(accepted, out, init)
