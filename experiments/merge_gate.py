@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rhaml_jax.planar import wrap_angle
+
 
 def merge(base: dict, aligned: dict, min_turn: float, max_shift: float | None = None) -> tuple[dict, int]:
     """(the constructed run, how many frames took ALIGNED's estimate)."""
@@ -30,7 +32,7 @@ def merge(base: dict, aligned: dict, min_turn: float, max_shift: float | None = 
         a = by_id[(r["scene_id"], r["im_id"])]
         out = dict(r)
         if r.get("ir_applied") and a.get("ir_applied"):
-            turn = abs(np.arctan2(np.sin(a["ir_est"][2] - r["ir_est"][2]), np.cos(a["ir_est"][2] - r["ir_est"][2])))
+            turn = abs(wrap_angle(a["ir_est"][2] - r["ir_est"][2]))
             b, e = np.asarray(r["ir_est"][:2]), np.asarray(a["ir_est"][:2])
             near = max_shift is None or np.hypot(*(e - b)) <= max_shift * np.hypot(*b)
             if turn > min_turn and near:

@@ -30,6 +30,7 @@ import numpy as np
 from rhaml_jax import crop as _crop
 from rhaml_jax import frames, render
 from rhaml_jax.camera import T_cam_robot
+from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine.alignment import AlignConfig, AlignResult, _corners, align, align_crop, align_to, check_init
 from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
@@ -263,7 +264,7 @@ def _flip_prob_after(flip_prob, psi_before, psi_after):
     """The scorer's P(the heading faces the other way) (-1: no scorer ran) for the heading after
     the alignment: where the alignment turned it by more than 90 deg, the other way is the scorer's
     side, so 1 - flip_prob."""
-    turned = jnp.abs(jnp.arctan2(jnp.sin(psi_after - psi_before), jnp.cos(psi_after - psi_before))) > jnp.pi / 2
+    turned = jnp.abs(wrap_angle(psi_after - psi_before)) > jnp.pi / 2
     return jnp.where((flip_prob >= 0) & turned, 1.0 - flip_prob, flip_prob)
 
 
@@ -391,7 +392,7 @@ def _heading_search(scorer: Scorer, mesh, corners, image, K, xyp, h, flip_thresh
         return 0.5 * (logits + S.apply(sc, scorer.params, xm))
 
     r = S.search_heading(score, x0[2], sc.grid, sc.fine, float(np.deg2rad(sc.fine_step_deg)), flip_threshold)
-    turn = jnp.arctan2(jnp.sin(r.psi - x0[2]), jnp.cos(r.psi - x0[2]))
+    turn = wrap_angle(r.psi - x0[2])
     # straight-through: the turn (and the pivot's shift) is added as a constant
     step = jax.lax.stop_gradient(S.turned(x0, turn, pivot) - x0)
     return xyp + step, 1.0 - r.flip_confidence, jnp.clip(2.0 * r.flip_confidence - 1.0, 0.0, 1.0)

@@ -45,6 +45,7 @@ import numpy as np
 from rhaml_jax import crop as _crop
 from rhaml_jax import render
 from rhaml_jax.camera import T_cam_robot
+from rhaml_jax.planar import wrap_angle
 
 __all__ = ["AlignConfig", "AlignResult", "align", "align_to", "align_crop", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
            "xypsi_from_params", "check_init"]
@@ -143,7 +144,7 @@ def params_from_xypsi(xypsi):
 
 def xypsi_from_params(p):
     r = jnp.exp(p[..., 0])
-    return jnp.stack([r * jnp.cos(p[..., 1]), r * jnp.sin(p[..., 1]), jnp.arctan2(jnp.sin(p[..., 2]), jnp.cos(p[..., 2]))], -1)
+    return jnp.stack([r * jnp.cos(p[..., 1]), r * jnp.sin(p[..., 1]), wrap_angle(p[..., 2])], -1)
 
 
 def pose_from_params(p, h) -> jaxlie.SE3:
@@ -374,7 +375,7 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     # within noise of the right one (measured: 9 of 50 circle frames chose a wrong one by < 30 %).
     tied = L <= jnp.min(L) * (1 + cfg.tie) + 1e-9
     dp = P - p0
-    dp = dp.at[:, 2].set(jnp.arctan2(jnp.sin(dp[:, 2]), jnp.cos(dp[:, 2])))
+    dp = dp.at[:, 2].set(wrap_angle(dp[:, 2]))
     d_init = jnp.sum(jnp.abs(dp) / jnp.asarray(cfg.tie_scale, P.dtype), -1)  # distance from the start
     best = jnp.argmin(jnp.where(tied, d_init, jnp.inf))
     keep_init = L_init <= L[best]
@@ -382,14 +383,14 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     L_best = jnp.where(keep_init, L_init, L[best])
     xyp_all = xypsi_from_params(P)
     xyp_best = xypsi_from_params(p_best)
-    dpsi = jnp.abs(jnp.arctan2(jnp.sin(xyp_all[:, 2] - xyp_best[2]), jnp.cos(xyp_all[:, 2] - xyp_best[2])))
+    dpsi = jnp.abs(wrap_angle(xyp_all[:, 2] - xyp_best[2]))
     L_other = jnp.min(jnp.where(dpsi > jnp.pi / 2, L, jnp.inf))
     conf = jnp.where(jnp.isfinite(L_other), (L_other - L_best) / jnp.maximum(L_other + L_best, 1e-12), 0.0)
     # straight-through: the increment carries no gradient (see the module docstring)
-    turn = jnp.arctan2(jnp.sin(xyp_best[2] - init[2]), jnp.cos(xyp_best[2] - init[2]))  # the heading's move, wrapped
+    turn = wrap_angle(xyp_best[2] - init[2])  # the heading's move, wrapped
     out = init + jax.lax.stop_gradient(xyp_best - init)
     out = out.at[2].set(init[2] + jax.lax.stop_gradient(turn))
-    out = out.at[2].set(jnp.arctan2(jnp.sin(out[2]), jnp.cos(out[2])))  # wrapped; gradient 1
+    out = out.at[2].set(wrap_angle(out[2]))  # wrapped; gradient 1
     accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
     if cfg.min_turn > 0:
         accepted = accepted & (jnp.abs(turn) > cfg.min_turn)

@@ -45,6 +45,7 @@ import numpy as np
 
 from rhaml_jax import render
 from rhaml_jax.errors import RhamlError
+from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine.net import config_to_dict, dataclass_from_dict, encode, encoder_init, luminance, named_config
 from rhaml_jax.refine.train import CropSource, _se3_params
 
@@ -332,7 +333,7 @@ def search_heading(score: Callable, psi0, grid: int, fine: int, fine_step: float
         inner = (kf > 0) & (kf < fine - 1)
         _, df = _peak(lf, fine_step)
         psi_c = psi_c + offs[kf] + jnp.where(inner, df, 0.0)
-    psi = jnp.arctan2(jnp.sin(psi_c), jnp.cos(psi_c))
+    psi = wrap_angle(psi_c)
     return HeadingSearch(psi, jnp.sum(jnp.where(jnp.cos(coarse - psi) > 0, p, 0.0)), flipped, lc)
 
 

@@ -28,6 +28,7 @@ import numpy as np
 from rhaml_jax import crop as _crop
 from rhaml_jax import render
 from rhaml_jax.errors import RhamlError
+from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine import net as N
 
 __all__ = ["RefinerBatch", "CropSource", "RefinerSource", "refiner_task", "initial_pose"]
@@ -60,7 +61,7 @@ def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0
         r *= 1 + rng.normal(0, 0.03 if wide else 0.01)
         b += rng.normal(0, np.deg2rad(0.6 if wide else 0.2))
         psi = psi + rng.normal(0, np.deg2rad(6.0 if wide else 2.0))
-        return np.array([r * np.cos(b), r * np.sin(b), np.arctan2(np.sin(psi), np.cos(psi))])
+        return np.array([r * np.cos(b), r * np.sin(b), wrap_angle(psi)])
     if rng.random() < 0.5:  # the paper's noise, in the robot's world
         sigma = 0.15 * scale
         return np.array([x + rng.normal(0, sigma), y + rng.normal(0, sigma), psi + rng.normal(0, np.deg2rad(20))])
@@ -68,7 +69,7 @@ def initial_pose(xypsi: np.ndarray, rng: np.random.Generator, scale: float = 1.0
     r *= 1 + rng.uniform(-0.15, 0.15)
     b += rng.normal(0, np.deg2rad(1.5))
     psi = psi + rng.normal(0, np.deg2rad(10)) + (np.pi if rng.random() < 0.125 else 0.0)
-    return np.array([r * np.cos(b), r * np.sin(b), np.arctan2(np.sin(psi), np.cos(psi))])
+    return np.array([r * np.cos(b), r * np.sin(b), wrap_angle(psi)])
 
 
 def _se3_params(T: np.ndarray) -> np.ndarray:
