@@ -60,6 +60,8 @@ class Args:
     """`AlignConfig.min_turn` in degrees: keep the start unless the alignment turns its heading by more"""
     max_shift: float | None = None
     """`AlignConfig.max_shift`: keep the start where the alignment moves the position by more than this fraction of the range"""
+    fd: str = AlignConfig.fd
+    """`AlignConfig.fd`: the alignment's finite differences ("central" or "forward")"""
     max_score: float | None = None
     """`AlignConfig.max_score`: keep the start where the aligned silhouette explains the mask worse than this"""
     mask_threshold: float = RefineConfig.mask_threshold
@@ -258,7 +260,7 @@ def main(a: Args) -> list[dict]:
         starts["iml"] = np.asarray(inits_iml, np.float32)
     mesh = render.as_mesh(data.load_bop_model(a.data[0]))
     cfg = AlignConfig(crop=a.crop, debias_stages=a.debias_stages, max_score=a.max_score, coarse_margin=a.coarse_margin,
-                      mirror=a.mirror_hypotheses, min_turn=float(np.deg2rad(a.min_turn_deg)), max_shift=a.max_shift,
+                      mirror=a.mirror_hypotheses, min_turn=float(np.deg2rad(a.min_turn_deg)), max_shift=a.max_shift, fd=a.fd,
                       **({} if a.coarse else {"coarse_stages": ()}),
                       **({} if a.stages is None else {"stages": parse_stages(a.stages)}))
     rows, per_frame = [], []

@@ -74,6 +74,10 @@ class AlignConfig:
     backward); "adam": Adam steps on the loss gradient"""
     fd_step: tuple[float, float, float] = (0.004, 0.0015, 0.015)
     """finite-difference steps (log range, bearing rad, heading rad) of the "lm" optimizer"""
+    fd: str = "central"
+    """the "lm" optimizer's Jacobian: "central" differences (6 renders per hypothesis and step) or
+    "forward" (3: the residuals at the current params are known), an error of order fd_step
+    in the Jacobian, none in the loss that accepts a step; renders are the alignment's cost"""
     max_step: tuple[float, float, float] = (0.1, 0.05, 0.6)
     """largest "lm" step per parameter (the rest of a longer step is dropped)"""
     lr: tuple[float, float, float] = (0.02, 0.006, 0.08)
@@ -116,6 +120,11 @@ class AlignConfig:
     """accept the result only if it moved the position by at most this fraction of the initial
     estimate's range; else keep the initial estimate (None: no such condition). From a cascade's
     end, within centimetres, a longer move follows a wrong mask (`refine.SEGMENTER_ALIGN`)"""
+
+    def __post_init__(self):
+        for field, allowed in (("optimizer", ("lm", "adam")), ("fd", ("central", "forward"))):
+            if getattr(self, field) not in allowed:
+                raise ValueError(f"AlignConfig.{field}: {getattr(self, field)!r} is not one of {allowed}")
 
 
 class AlignResult(NamedTuple):
@@ -254,9 +263,12 @@ def _lm_stage(residuals, P, k, bias, free, iters: int, cfg: AlignConfig):
 
     def body(_, st):
         P, r, lam = st
-        Q = jnp.concatenate([P[:, None] + E[None], P[:, None] - E[None]], 1)  # (N, 6, 3)
-        rq = residuals(Q, k, bias[:, None])  # (N, 6, M)
-        J = (rq[:, :3] - rq[:, 3:]) / (2 * jnp.maximum(hstep, 1e-12))[None, :, None]  # (N, 3, M); guard: held
+        if cfg.fd == "forward":
+            J = (residuals(P[:, None] + E[None], k, bias[:, None]) - r[:, None]) / jnp.maximum(hstep, 1e-12)[None, :, None]
+        else:
+            Q = jnp.concatenate([P[:, None] + E[None], P[:, None] - E[None]], 1)  # (N, 6, 3)
+            rq = residuals(Q, k, bias[:, None])  # (N, 6, M)
+            J = (rq[:, :3] - rq[:, 3:]) / (2 * jnp.maximum(hstep, 1e-12))[None, :, None]  # (N, 3, M); guard: held
         J = J * free[None, :, None]
         A = jnp.einsum("nim,njm->nij", J, J)
         g = jnp.einsum("nim,nm->ni", J, r)
