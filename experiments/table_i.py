@@ -48,7 +48,7 @@ def refiner_size() -> dict:
     import jax.numpy as jnp
 
     from rhaml_jax.amlnet.count import jaxpr_macs
-    from rhaml_jax.refine import load_stage, net, scorer
+    from rhaml_jax.refine import load_stage, net, scorer, segmenter
 
     cfg, stage = load_stage()
     out = {"params": 0, "macs": 0, "networks": []}
@@ -62,6 +62,9 @@ def refiner_size() -> dict:
         sc = stage.scorer.cfg
         n = (sc.grid + (sc.fine if sc.fine > 1 else 0)) * (2 if cfg.scorer_mirror else 1)
         nets.append((sc.name, functools.partial(scorer.apply, sc), stage.scorer.params, (1, sc.crop, sc.crop, 3), n))
+    if stage.segmenter is not None:  # one pass per frame: the alignment's observed mask
+        sg = stage.segmenter.cfg
+        nets.append((sg.name, functools.partial(segmenter.apply, sg), stage.segmenter.params, (1, sg.crop, sg.crop, 3), 1))
     for name, apply, p, shape, n in nets:
         x = jax.ShapeDtypeStruct(shape, jnp.float32)
         macs = int(jaxpr_macs(jax.make_jaxpr(apply)(p, x).jaxpr))

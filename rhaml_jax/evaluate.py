@@ -63,14 +63,14 @@ class Args:
     segmenter: Path | None = None
     """segmenter checkpoint folder (`train --stage segmenter`; the ir module: after the learned
     iterations, the silhouette alignment to its masks of the image, `refine.SEGMENTER_ALIGN`, then
-    `RefineConfig.fine_after_align` fine iterations; default: none. Shipped:
-    rhaml_jax/checkpoints/segmenter_fine_cpu, see BENCHMARKS.md "A segmenter for the cascade's end")"""
+    `RefineConfig.fine_after_align` fine iterations; "none": without; default: the shipped
+    `refine.DEFAULT_SEGMENTER` when --refiner is not given, else none)"""
     fine_after_align: int | None = None
-    """with --segmenter: the fine refiner's iterations after the alignment (`RefineConfig.fine_after_align`; None: its default)"""
+    """with a segmenter (the default one too): the fine refiner's iterations after the alignment (`RefineConfig.fine_after_align`; None: its default)"""
     mask_threshold: float | None = None
-    """with --segmenter: its mask is thresholded here (`RefineConfig.mask_threshold`; None: its default)"""
+    """with a segmenter: its mask is thresholded here (`RefineConfig.mask_threshold`; None: its default)"""
     align_gates: bool = True
-    """with --segmenter: keep the alignment's result only where it turns the heading and stays near
+    """with a segmenter: keep the alignment's result only where it turns the heading and stays near
     (`refine.SEGMENTER_ALIGN`'s `min_turn` and `max_shift`); --no-align-gates: it always stands"""
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned

@@ -133,19 +133,21 @@ def test_shipped_refiner_size_and_robot(name):
 
 def test_the_default_ir_stage_is_the_shipped_cascade():
     """`refine.load_stage()`: the shipped refiner, its front/back scorer at its threshold with no
-    coarse iteration after it, then the shipped fine ones (an ensemble); "none" leaves a scorer or
-    the fine ones out, and another refiner runs without them unless they are named."""
-    from rhaml_jax.refine import DEFAULT_FLIP_THRESHOLD, RefineConfig, load_stage
+    coarse iteration after it, then the shipped fine ones (an ensemble), then the alignment to the
+    shipped segmenter's masks; "none" leaves a scorer, the fine ones or the segmenter out, and another
+    refiner runs without them unless they are named."""
+    from rhaml_jax.refine import DEFAULT_FLIP_THRESHOLD, SEGMENTER_ALIGN, RefineConfig, load_stage
 
     cfg, stage = load_stage()
     assert (stage.refiner.cfg.name, stage.refiner.cfg.starts) == ("refiner_paint_cpu", "coarse")
     assert [m.cfg.name for m in stage.fine] == ["refiner_fine_paint_cpu", "refiner_fine_native_cpu"]
     assert stage.scorer.cfg.name == "scorer_flip_wide_cpu"
+    assert stage.segmenter.cfg.name == "segmenter_fine_cpu" and cfg.align == SEGMENTER_ALIGN
     assert (cfg.flip_threshold, cfg.post_iter) == (DEFAULT_FLIP_THRESHOLD, 0) != (RefineConfig.flip_threshold, RefineConfig.post_iter)
     assert load_stage(fine="none")[1].fine is None
     assert load_stage(scorer="none")[1].scorer is None
     other = load_stage(shipped_checkpoint("refiner_fit180_cpu"))
-    assert other[1].fine is None and other[1].scorer is None and other[0].flip_threshold == RefineConfig.flip_threshold
+    assert other[1].fine is None and other[1].scorer is None and other[1].segmenter is None and other[0].flip_threshold == RefineConfig.flip_threshold
     named = load_stage(shipped_checkpoint("refiner_fit180_cpu"), fine=shipped_checkpoint(DEFAULT_FINE_REFINERS[0]))[1]
     assert named.fine.cfg.starts == "fine"
 
@@ -191,7 +193,7 @@ def test_shipped_front_back_scorers(tiny_bop_set, name, min_right, sideways):
 
 
 def test_shipped_segmenter(tiny_bop_set):
-    """The segmenter for the cascade's end (opt-in: `evaluate --segmenter`): within the size budget,
+    """The segmenter for the cascade's end (the default stage's, `refine.DEFAULT_SEGMENTER`): within the size budget,
     the Pioneer's (another robot is refused), and on the tiny set's randomised-look frames its mask in
     the alignment's crop at the true pose overlaps the true mask (median IoU when shipped: see
     BENCHMARKS.md; an untrained segmenter's is 0); `load_stage` aligns to it with `SEGMENTER_ALIGN`."""
@@ -236,4 +238,4 @@ def test_shipped_segmenter(tiny_bop_set):
         args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--zoom-mirror", "--segmenter", str(path), *flags])
         align = evaluate._load(args, ("iml", "ir"))[0].refiner.align
         assert (align == SEGMENTER_ALIGN) == gated and align.stages == SEGMENTER_ALIGN.stages
-    assert load_stage()[0].align is None  # the default stage: no alignment
+    assert load_stage(segmenter="none")[0].align is None and load_stage(segmenter="none")[1].segmenter is None

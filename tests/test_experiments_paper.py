@@ -60,13 +60,14 @@ def test_table_i_json_and_npz(table):
                 assert math.isfinite(m["ate"]) and m["fps"] > 0
     # RHAML's size is IML's plus the IR cascade's: the refiner's four iterations, the fine ensemble's
     # two members' iterations, each read twice (the default mirrors the fine iterations of this robot),
-    # and the front/back scorer's two hypotheses
+    # the front/back scorer's two hypotheses and the segmenter's one mask
     from rhaml_jax.refine import DEFAULT_MIRROR, RefineConfig
 
     r, ir = res["rows"], table_i.refiner_size()
     k = RefineConfig().fine_iter * (2 if DEFAULT_MIRROR != "none" else 1)
     assert [n.split(" (")[0] for n in ir["networks"]] == ["refiner_paint_cpu x 4", f"refiner_fine_paint_cpu x {k}",
-                                                         f"refiner_fine_native_cpu x {k}", "scorer_flip_wide_cpu x 2"]
+                                                         f"refiner_fine_native_cpu x {k}", "scorer_flip_wide_cpu x 2",
+                                                         "segmenter_fine_cpu x 1"]
     assert r["rhaml"]["params"] == r["iml"]["params"] + ir["params"] and r["rhaml"]["macs"] == r["iml"]["macs"] + ir["macs"]
     assert r["rhaml"]["params"] > r["iml"]["params"] > r["amlnet"]["params"]
     assert r["rhaml"]["macs"] > r["iml"]["macs"] > r["amlnet"]["macs"]

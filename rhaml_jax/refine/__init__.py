@@ -36,7 +36,7 @@ from rhaml_jax.refine.net import RefinerConfig, get_refiner_config
 from rhaml_jax.refine.scorer import Scorer, ScorerConfig, load_scorer
 from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_target, load_segmenter, observed_mask
 
-__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "SEGMENTER_ALIGN", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
+__all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "DEFAULT_SEGMENTER", "SEGMENTER_ALIGN", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
            "StageParams", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
@@ -455,8 +455,15 @@ DEFAULT_FLIP_THRESHOLD = 0.8
 """`RefineConfig.flip_threshold` that `load_stage` sets with `DEFAULT_SCORER` (chosen on the validation looks' offline sweep)"""
 
 
+DEFAULT_SEGMENTER = "segmenter_fine_cpu"
+"""the shipped observed-mask segmenter that `load_stage` runs after the default cascade: the
+silhouette alignment to its mask (`SEGMENTER_ALIGN`), which reads the heading of a robot whose
+paint the refiners do not know from its outline (BENCHMARKS.md, "A segmenter for the cascade's
+end" and "The alignment by default": chosen on validation in session 48)"""
+
+
 SEGMENTER_ALIGN = AlignConfig(coarse_stages=(), stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)), min_turn=float(np.deg2rad(4.0)),
-                              max_shift=0.03)
+                              max_shift=0.03, fd="forward")
 """`RefineConfig.align` that `load_stage` sets with a segmenter: the alignment from the cascade's
 end (its position within centimetres, no coarse pass) in 14 steps instead of the default's 35,
 kept only where it turns the heading by more than 4 deg (`AlignConfig.min_turn`: where the
@@ -465,7 +472,9 @@ position by at most 3 % of the range (`AlignConfig.max_shift`: a longer move fol
 mask); both chosen on the validation runs (BENCHMARKS.md). Measured from the
 default cascade's end (BENCHMARKS.md, "A segmenter for the cascade's end"): to ground-truth masks,
 |dx| 1.9 cm, 0 flips on the OOD validation circle (the default schedule: 1.5 cm, 0 flips); to the
-segmenter's masks, the OOD circle's |dpsi| 17.5 -> 3.5 deg, our circle's untouched"""
+segmenter's masks, the OOD circle's |dpsi| 17.5 -> 3.5 deg, our circle's untouched. Forward
+differences (`AlignConfig.fd`): 1.4-1.75x faster than central ones, and the gated stage with them
+passed the validation rule (BENCHMARKS.md, "The alignment by default")"""
 
 
 def shipped_refiner(model=None) -> Refiner:
@@ -494,8 +503,9 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     when `data_dir` has one, else the built-in robot; a checkpoint made for another robot is
     refused (unless not `check_robot`: a deliberate transfer test). Default refiner: the shipped
     `DEFAULT_REFINER`, with the shipped `DEFAULT_SCORER` after its coarse iterations and then the
-    shipped `DEFAULT_FINE_REFINERS` (`scorer` or `fine` "none": without them; given another refiner,
-    a scorer or fine refiner runs only if named); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
+    shipped `DEFAULT_FINE_REFINERS`, then the alignment to the shipped `DEFAULT_SEGMENTER`'s masks
+    (`scorer`, `fine` or `segmenter` "none": without them; given another refiner, a scorer, fine
+    refiner or segmenter runs only if named); with `segmenter` (a checkpoint folder) the learned iterations are followed by the
     silhouette alignment to its masks (`SEGMENTER_ALIGN`); with `scorer` (a checkpoint folder) by the heading search;
     with `fine` (a refiner checkpoint folder, or several: an ensemble) by that refiner's iterations (a cascade). `mirror`:
     `RefineConfig.mirror` (None: `DEFAULT_MIRROR` for a left-right symmetric robot, "none" for
@@ -507,7 +517,9 @@ def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None =
     robot = load_bop_model(data_dir) if data_dir is not None and bop_model_path(data_dir).exists() else load_robot("pioneer3dx")
     check = robot if check_robot else None
     refiner = load_refiner(ckpt_dir or shipped_checkpoint(DEFAULT_REFINER), check)
-    seg = None if segmenter is None else load_segmenter(segmenter, check)
+    if segmenter is None and ckpt_dir is None:
+        segmenter = shipped_checkpoint(DEFAULT_SEGMENTER)
+    seg = None if segmenter is None or str(segmenter) == "none" else load_segmenter(segmenter, check)
     cfg = RefineConfig(mirror=_mirror_setting(robot, mirror), align=None if seg is None else SEGMENTER_ALIGN)
     if scorer is None and ckpt_dir is None:
         scorer = shipped_checkpoint(DEFAULT_SCORER)
