@@ -2,7 +2,7 @@
 both information models for the pose graph: the numbers of BENCHMARKS.md's pipeline section.
 
   python experiments/table_iii.py --ours /work/data --heldout /work/data/heldout --out table_iii.json
-      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT [--fine-refiner CKPT [CKPT ...]]]
+      [--combos iml iml,pgo iml,ir iml,ir,pgo] [--frames N] [--amlnet CKPT --zoom CKPT] [--refiner CKPT [--fine-refiner CKPT [CKPT ...]] [--segmenter CKPT]]
 
 Each data root holds `circle/` and `sine/` BOP scenarios (`generate --scenario`, `generate --heldout`).
 """
@@ -28,6 +28,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--fine-refiner", nargs="+", default=None,
                     help="a cascade's fine refiner after --refiner (fit's networks/fine; several: an ensemble; "
                          "without --refiner the shipped ones run, 'none' turns them off)")
+    ap.add_argument("--segmenter", default=None,
+                    help="the segmenter whose masks IR aligns to after the cascade (without --refiner the shipped one "
+                         "runs, 'none' turns it off)")
     a = ap.parse_args(argv)
     from rhaml_jax import iml, pgo, tune_allocator
 
@@ -48,7 +51,7 @@ def main(argv=None) -> dict:
                 fusion = pgo.FusionConfig(information=info) if info else None
                 t = time.perf_counter()
                 m, _ = run_combination(mods, iml_model, iml_params, scenes, root / "circle", fusion, a.refiner,
-                                       a.fine_refiner)
+                                       a.fine_refiner, a.segmenter)
                 row = {"set": set_name, "modules": combo, "information": info, **m,
                        "wall_seconds": round(time.perf_counter() - t, 1)}
                 print(json.dumps(row), flush=True)

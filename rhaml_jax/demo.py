@@ -62,11 +62,12 @@ def _combination_available(mods) -> str | None:
 
 
 def run_combination(mods, iml_model, iml_params, scenes: list, data_dir: Path, fusion=None,
-                    refiner_dir: Path | None = None, fine_dir: Path | str | list[Path | str] | None = None) -> tuple[dict, list]:
+                    refiner_dir: Path | None = None, fine_dir: Path | str | list[Path | str] | None = None,
+                    segmenter_dir: Path | str | None = None) -> tuple[dict, list]:
     """One module combination over BOP scenes (lists of frames) with the given IML (and for "ir"
-    the refiner in `refiner_dir` with the fine refiner `fine_dir`, as `refine.load_stage` takes
-    them: by default the shipped cascade): (the paper's metrics over all scenes + fps, the
-    SceneRuns)."""
+    the refiner in `refiner_dir` with the fine refiner `fine_dir` and the segmenter `segmenter_dir`,
+    as `refine.load_stage` takes them: by default the shipped cascade and segmenter): (the paper's
+    metrics over all scenes + fps, the SceneRuns)."""
     from rhaml_jax import pgo, pipeline
     from rhaml_jax.evaluate import score
     from rhaml_jax.planar import wrap_angle
@@ -76,7 +77,7 @@ def run_combination(mods, iml_model, iml_params, scenes: list, data_dir: Path, f
     if "ir" in mods:
         from rhaml_jax import refine
 
-        refiner, refiner_params = refine.load_stage(refiner_dir, data_dir, fine=fine_dir)
+        refiner, refiner_params = refine.load_stage(refiner_dir, data_dir, fine=fine_dir, segmenter=segmenter_dir)
     cfg = pipeline.PipelineConfig(modules=tuple(mods), fusion=fusion or pgo.FusionConfig())
     model = pipeline.PipelineModel(iml_model, cfg, refiner)
     runs, compile_s, seconds = run_scenes(model, pipeline.PipelineParams(iml_params, refiner_params), scenes)

@@ -115,17 +115,17 @@ def test_stage_diagnostics(table, tmp_path):
 
 
 def test_table_iii_names_the_cascade(table):
-    """experiments/table_iii.py with the shipped cascade named (--refiner, --fine-refiner) gives
-    Table I's RHAML row (the same pipeline on the same frames), for both information models;
-    without the fine refiner it gives another."""
+    """experiments/table_iii.py with the shipped cascade named (--refiner, --fine-refiner,
+    --segmenter) gives Table I's RHAML row (the same pipeline on the same frames), for both
+    information models; without the fine refiner it gives another."""
     import table_iii
 
     from rhaml_jax.amlnet import shipped_checkpoint
-    from rhaml_jax.refine import DEFAULT_FINE_REFINERS, DEFAULT_REFINER
+    from rhaml_jax.refine import DEFAULT_FINE_REFINERS, DEFAULT_REFINER, DEFAULT_SEGMENTER
 
     out, res = table
     args = ["--ours", str(out.parents[1] / "ours"), "--frames", "4", "--combos", "iml,ir,pgo", "--out", str(out.parent / "t3.json"),
-            "--refiner", str(shipped_checkpoint(DEFAULT_REFINER))]
+            "--refiner", str(shipped_checkpoint(DEFAULT_REFINER)), "--segmenter", str(shipped_checkpoint(DEFAULT_SEGMENTER))]
     keys = ("dx_cm", "dy_cm", "dpsi_deg", "ate", "detection")
     fines = ["--fine-refiner", *(str(shipped_checkpoint(n)) for n in DEFAULT_FINE_REFINERS)]
     cascade = table_iii.main([*args, *fines])
