@@ -238,4 +238,5 @@ def test_shipped_segmenter(tiny_bop_set):
         args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--zoom-mirror", "--segmenter", str(path), *flags])
         align = evaluate._load(args, ("iml", "ir"))[0].refiner.align
         assert (align == SEGMENTER_ALIGN) == gated and align.stages == SEGMENTER_ALIGN.stages
-    assert load_stage(segmenter="none")[0].align is None and load_stage(segmenter="none")[1].segmenter is None
+    off = load_stage(segmenter="none")
+    assert off[0].align is None and off[1].segmenter is None
