@@ -19,7 +19,7 @@ from rhaml_jax.camera import NOMINAL_HEIGHT_M, Camera, T_cam_robot
 from rhaml_jax.data import _appearance as _ap
 from rhaml_jax.data._backdrop import Light, RoomLook, photo, room_albedo, room_image, room_surfaces, sample_light, sample_room
 from rhaml_jax.frames import se3_from_xypsi
-from rhaml_jax.planar import between
+from rhaml_jax.planar import between, wrap_angle
 from rhaml_jax.render import Mesh, render
 
 MIN_VISIBLE_PX = 12  # fewer visible robot pixels than this count as "not in view"
@@ -110,8 +110,7 @@ def _may_occlude(xy, reach: float, robot_xy, robot_r: float) -> bool:
     if d_obj - reach > d_rob + robot_r:
         return False  # entirely behind the robot
     half = lambda r, d: np.arcsin(min(1.0, r / max(d, 1e-6)))  # noqa: E731
-    gap = abs(np.arctan2(np.sin(np.arctan2(xy[1], xy[0]) - np.arctan2(robot_xy[1], robot_xy[0])),
-                         np.cos(np.arctan2(xy[1], xy[0]) - np.arctan2(robot_xy[1], robot_xy[0]))))
+    gap = abs(wrap_angle(np.arctan2(xy[1], xy[0]) - np.arctan2(robot_xy[1], robot_xy[0])))
     return gap < half(reach, d_obj) + half(robot_r, d_rob) + 0.02
 
 
