@@ -51,17 +51,14 @@ def main():
     gt, init = frames(a.batch)
     S = SEGMENTER_ALIGN.crop
 
-    def targets(cfg):
-        boxes = jax.vmap(lambda x: crop_box(mesh, K, x, cfg))(jnp.asarray(gt))
-        T = pose_from_params(params_from_xypsi(jnp.asarray(gt)), cfg.camera_height_m)
-        masks = jax.vmap(lambda t, b: render.render(mesh, t, K, S, S, box=b).mask)(T, boxes)
-        return masks.astype(jnp.float32), boxes
-
+    # the targets: hard masks at the true poses in the crop every variant uses (they share crop, margin, camera)
+    boxes = jax.vmap(lambda x: crop_box(mesh, K, x, SEGMENTER_ALIGN))(jnp.asarray(gt))
+    T = pose_from_params(params_from_xypsi(jnp.asarray(gt)), SEGMENTER_ALIGN.camera_height_m)
+    masks = jax.vmap(lambda t, b: render.render(mesh, t, K, S, S, box=b).mask)(T, boxes).astype(jnp.float32)
     variants = {f"fd {fd}": dataclasses.replace(SEGMENTER_ALIGN, fd=fd, min_turn=0.0, max_shift=None) for fd in ("central", "forward")}
     variants["fd forward, no mirrored hypotheses"] = dataclasses.replace(variants["fd forward"], mirror=False)
     calls = {}
     for name, cfg in variants.items():
-        masks, boxes = targets(cfg)
         fn = jax.jit(jax.vmap(lambda m, b, i, cfg=cfg: align_crop(mesh, m, b, K, i, CAM.width, CAM.height, cfg).xypsi))
         one = (masks[:1], boxes[:1], jnp.asarray(init[:1]))
         many = (masks, boxes, jnp.asarray(init))
