@@ -71,7 +71,8 @@ class Args:
     """with a segmenter: its mask is thresholded here (`RefineConfig.mask_threshold`; None: its default)"""
     align_gates: bool = True
     """with a segmenter: keep the alignment's result only where it turns the heading and stays near
-    (`refine.SEGMENTER_ALIGN`'s `min_turn` and `max_shift`); --no-align-gates: it always stands"""
+    (`refine.SEGMENTER_ALIGN`'s `min_turn` and `max_shift`), and skip it where the start already
+    fits the mask (its `skip_iou`); --no-align-gates: it always runs and stands"""
     scorer: Path | None = None
     """heading scorer checkpoint folder (`train --stage scorer`; the ir module: after the learned
     iterations, the best of rendered heading hypotheses, flips included; "none": without; default: the
@@ -116,6 +117,8 @@ class Args:
     the range off by less than this (`PipelineConfig.range_window_max_scale`); None: always"""
     batch: int = 32
     """frames per network call"""
+    ir_batch: int = 1
+    """frames per IR call (`PipelineConfig.ir_chunk`: at 1 a frame skips the work it does not need)"""
     allow_other_robot: bool = False
     """run networks made for another robot than the data set's (a deliberate transfer test; by
     default that is refused, comparing the robot fingerprints the checkpoints store)"""
@@ -189,10 +192,11 @@ def _load(args: Args, modules):
             iml.check_mirror_symmetric(robot, path, "--scorer-mirror")
             given["scorer_mirror"] = True
         if not args.align_gates and refiner.align is not None:
-            given["align"] = dataclasses.replace(refiner.align, min_turn=0.0, max_shift=None)
+            given["align"] = dataclasses.replace(refiner.align, min_turn=0.0, max_shift=None, skip_iou=None)
         refiner = dataclasses.replace(refiner, max_final_step=args.max_final_step, **given)
     fusion = pgo.FusionConfig(information="paper" if args.paper_information else "noise_model")
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
+                                  ir_chunk=args.ir_batch,
                                   calibrate_range=not args.no_range_calibration, range_window=args.range_window,
                                   range_window_max_scale=args.range_window_max_scale, redetect_threshold=args.redetect_threshold)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
@@ -204,8 +208,8 @@ def run(args: Args) -> dict:
     from rhaml_jax.sequence import group_scenes, run_scenes
 
     modules = pipeline.parse_modules(args.modules)
-    if args.batch < 1:
-        raise RhamlError(f"--batch {args.batch}: must be positive")
+    if args.batch < 1 or args.ir_batch < 1:
+        raise RhamlError(f"--batch {args.batch}, --ir-batch {args.ir_batch}: both must be positive")
     frames = read_bop(args.data, args.split, args.scene)
     model, params = _load(args, modules)
     runs, compile_s, seconds = run_scenes(model, params, list(group_scenes(frames).values()))

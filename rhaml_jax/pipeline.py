@@ -69,6 +69,12 @@ class PipelineConfig:
     pgo_mode: Literal["batch", "online"] = "batch"
     fusion: pgo.FusionConfig = pgo.FusionConfig()
     chunk: int = 32  # frames per network call inside the traced function (bounds activation memory)
+    # frames per IR call: at 1 each frame is refined alone, so `jax.lax.cond` skips the work a frame
+    # does not need (frames that are not candidates; the alignment where its start already fits the
+    # segmenter's mask, `AlignConfig.skip_iou`); vmapped frames run both branches. On this CPU one
+    # at a time measured as fast as 32 vmapped (267 against 299 ms per frame of the default stage,
+    # BENCHMARKS.md "Skipping the alignment"); a GPU may want more
+    ir_chunk: int = 1
     # batch pgo: calibrate the observations' range error from odometry (pgo.fuse_calibrated), then
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell
     calibrate_range: bool = True
@@ -103,8 +109,8 @@ class PipelineConfig:
             raise RhamlError(f"range_window_max_scale {self.range_window_max_scale!r}: expected None or a number in (0, {pgo.MAX_LOG_SCALE}]")
         if self.pgo_mode not in ("batch", "online"):
             raise RhamlError(f"pgo_mode {self.pgo_mode!r}: expected 'batch' or 'online'")
-        if self.chunk < 1:
-            raise RhamlError(f"chunk {self.chunk}: must be positive")
+        if self.chunk < 1 or self.ir_chunk < 1:
+            raise RhamlError(f"chunk {self.chunk}, ir_chunk {self.ir_chunk}: both must be positive")
         if self.redetect_threshold is not None:
             if not 0.0 < self.redetect_threshold < DETECTION_THRESHOLD:
                 raise RhamlError(f"redetect_threshold {self.redetect_threshold}: must lie in (0, {DETECTION_THRESHOLD}), "
@@ -262,11 +268,19 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
     p = params.refiner
 
     def one(frame):
-        image, K, xypsi = frame
-        return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
-                             segmenter=p.segmenter, scorer=p.scorer, fine=p.fine)
+        image, K, xypsi, candidate = frame
 
-    out = _chunked(one, (seq.images, seq.K, est.xypsi), model.config.chunk)
+        def run(image, K, xypsi):
+            return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
+                                 segmenter=p.segmenter, scorer=p.scorer, fine=p.fine)
+
+        def skip(image, K, xypsi):  # not a candidate: IML's estimate stays (declined), nothing rendered
+            out = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(run, image, K, xypsi))
+            return out._replace(xypsi=xypsi, declined=jnp.bool_(True))
+
+        return jax.lax.cond(candidate, run, skip, image, K, xypsi)
+
+    out = _chunked(one, (seq.images, seq.K, est.xypsi, detected), model.config.ir_chunk)
     keep = detected & ~out.declined & out.converged
     pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
     # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the

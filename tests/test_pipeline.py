@@ -208,6 +208,33 @@ def test_ir_with_a_segmenter_runs_the_alignment_to_its_masks(stage):
     assert not np.allclose(with_seg.ir.xypsi, without.ir.xypsi)
 
 
+def test_ir_frame_by_frame_equals_vmapped_frames(stage):
+    """`PipelineConfig.ir_chunk` 1 (each frame alone: lax.cond skips a frame that is no candidate,
+    and the alignment where its start fits the mask, `AlignConfig.skip_iou`) gives what 2 frames
+    vmapped together give (both branches run); a frame that is not valid keeps IML's estimate."""
+    from rhaml_jax import refine, render
+    from rhaml_jax.refine import segmenter as G
+    from rhaml_jax.robots import load_robot
+
+    m, p = stage
+    rc = refine.get_refiner_config("refiner_micro")
+    refiner = refine.Refiner(refine.net.init_params(rc, jax.random.key(3)), rc)
+    sc = G.get_segmenter_config("segmenter_micro")
+    params = G.init_params(sc, jax.random.key(4))
+    params["out"]["b"] = jnp.array([3.0])  # every pixel robot: the alignment runs (its start's IoU is low)
+    stage_params = refine.StageParams(refiner, render.as_mesh(load_robot("pioneer3dx")), G.Segmenter(params, sc))
+    seq = _sequence(n=2)._replace(valid=np.array([True, False]))
+    tiny = refine.AlignConfig(crop=32, stages=((2.0, 2),), coarse_stages=(), skip_iou=0.9)
+    runs = [pipeline.run_jit(pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "ir"), chunk=2, ir_chunk=k),
+                                                    refine.RefineConfig(align=tiny, n_iter=1)),
+                             pipeline.PipelineParams(p, stage_params), seq) for k in (1, 2)]
+    np.testing.assert_allclose(np.asarray(runs[0].ir.xypsi), np.asarray(runs[1].ir.xypsi), atol=1e-4)
+    np.testing.assert_array_equal(np.asarray(runs[0].ir.xypsi[1]), np.asarray(runs[0].iml.xypsi[1]))
+    assert not np.allclose(runs[0].ir.xypsi[0], runs[0].iml.xypsi[0])
+    with pytest.raises(RhamlError, match="ir_chunk"):
+        pipeline.PipelineConfig(ir_chunk=0)
+
+
 def test_frames_where_ir_does_not_converge_keep_imls_estimate(stage):
     """`RefineConfig.max_final_step`: where the refiner's last coarse iteration still moves the
     range by more than it, the pipeline keeps IML's estimate (as where the refiner declines)."""

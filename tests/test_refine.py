@@ -188,3 +188,33 @@ def test_forward_differences_align_as_central_ones():
         assert np.all(np.abs(np.rad2deg(np.arctan2(np.sin(d[:, 2]), np.cos(d[:, 2])))) < 2.0), (fd, d.tolist())
     with pytest.raises(ValueError, match="AlignConfig.fd"):
         AlignConfig(fd="backward")
+
+
+def test_skip_iou_keeps_a_start_that_already_fits_the_mask():
+    """skip_iou: a start whose hard silhouette already matches the mask (the truth: IoU 1) is
+    not optimised (skipped, not accepted, the start returned exactly); a start 25 deg off (IoU
+    below 0.95) is aligned as without the test, frame by frame (lax.cond) and vmapped (both
+    branches run); a value outside (0, 1] is refused naming the field."""
+    from rhaml_jax import crop as _crop
+    from rhaml_jax.refine.alignment import crop_box, start_iou
+
+    gt = np.array([3.0, 0.4, 0.7], np.float32)
+    starts = jnp.asarray(gt + np.array([[0.0, 0.0, 0.0], [0.03, 0.02, np.deg2rad(25.0)]], np.float32))
+    plain = AlignConfig(crop=48, stages=((2.0, 4), (4.0, 4), (8.0, 3), (8.0, 3)), coarse_stages=(), debias_stages=2, fd="forward")
+    skip = dataclasses.replace(plain, skip_iou=0.95)
+    robot = mesh()
+    m = _masks(gt[None])[0]
+    one = jax.jit(lambda c, i: align(robot, m, K, i, c), static_argnums=0)
+    a = [one(plain, s) for s in starts]
+    b = [one(skip, s) for s in starts]
+    v = jax.jit(lambda c: jax.vmap(lambda i: align(robot, m, K, i, c))(starts), static_argnums=0)(skip)
+    box = crop_box(robot, K, starts[1], skip)
+    assert float(start_iou(robot, K, box, _crop.crop_image(m[..., None], box, 48, 48)[..., 0], starts[1], skip)) < 0.95
+    assert bool(b[0].skipped) and not bool(b[0].accepted) and np.array_equal(np.asarray(b[0].xypsi), np.asarray(starts[0]))
+    assert bool(v.skipped[0]) and np.array_equal(np.asarray(v.xypsi[0]), np.asarray(starts[0]))
+    assert not bool(b[1].skipped) and bool(b[1].accepted)
+    np.testing.assert_allclose(np.asarray(b[1].xypsi), np.asarray(a[1].xypsi), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(v.xypsi[1]), np.asarray(a[1].xypsi), atol=1e-5)
+    assert abs(np.rad2deg(np.arctan2(np.sin(b[1].xypsi[2] - gt[2]), np.cos(b[1].xypsi[2] - gt[2])))) < 2.0
+    with pytest.raises(ValueError, match="AlignConfig.skip_iou"):
+        AlignConfig(skip_iou=1.5)

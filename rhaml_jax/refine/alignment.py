@@ -48,7 +48,7 @@ from rhaml_jax.camera import T_cam_robot
 from rhaml_jax.planar import wrap_angle
 
 __all__ = ["AlignConfig", "AlignResult", "align", "align_to", "align_crop", "crop_box", "hypotheses", "pose_from_params", "params_from_xypsi",
-           "xypsi_from_params", "check_init"]
+           "xypsi_from_params", "check_init", "start_iou"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,11 +120,19 @@ class AlignConfig:
     """accept the result only if it moved the position by at most this fraction of the initial
     estimate's range; else keep the initial estimate (None: no such condition). From a cascade's
     end, within centimetres, a longer move follows a wrong mask (`refine.SEGMENTER_ALIGN`)"""
+    skip_iou: float | None = None
+    """skip the optimisation (keep the initial estimate, `AlignResult.skipped`) where the observed
+    mask and the initial estimate's hard silhouette already agree at this IoU or more (`start_iou`;
+    None: never skip). With `min_turn` such a start is rarely turned far enough to be kept, and the
+    skip saves the alignment's renders: under `jax.lax.cond`, so only where frames are aligned one
+    at a time (under vmap both branches run; `pipeline` maps IR over single frames)"""
 
     def __post_init__(self):
         for field, allowed in (("optimizer", ("lm", "adam")), ("fd", ("central", "forward"))):
             if getattr(self, field) not in allowed:
                 raise ValueError(f"AlignConfig.{field}: {getattr(self, field)!r} is not one of {allowed}")
+        if self.skip_iou is not None and not 0 < self.skip_iou <= 1:
+            raise ValueError(f"AlignConfig.skip_iou: {self.skip_iou!r} is not in (0, 1] or None")
 
 
 class AlignResult(NamedTuple):
@@ -139,7 +147,9 @@ class AlignResult(NamedTuple):
     scores: jax.Array  # (N,) their final losses
     box: jax.Array  # (4,) the crop box (full-image px)
     accepted: jax.Array  # () bool: the result was kept (not declined, score within max_score, turned by more than
-    #                       min_turn, moved by at most max_shift)
+    #                       min_turn, moved by at most max_shift, not skipped)
+    skipped: jax.Array  # () bool: the start already agreed with the mask (AlignConfig.skip_iou): not optimised
+    #                      (hypotheses stay at their starts, scores all the start's)
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -242,15 +252,31 @@ def _loss_fn(mesh, K, box, target, h, S):
     return residuals, losses, vg
 
 
-def _bias(mesh, K, box, P, k, h, S, ss: int = 4):
-    """(N, S, S) stop-gradient soft - hard silhouette at params P: the renderer's excess. The
-    hard silhouette is rendered ss x ss times finer and averaged (its pixel-area coverage, as the
-    observed mask's area-filtered crop), so the debiased residual compares like with like."""
-    T = pose_from_params(P, h)
-    soft = render.silhouette(mesh, T, K, S, S, box=box, sharpness=k)
-    hard = render.render(mesh, T, K, S * ss, S * ss, box=box).mask.astype(soft.dtype)
-    hard = hard.reshape(hard.shape[:-2] + (S, ss, S, ss)).mean((-3, -1))
-    return jax.lax.stop_gradient(soft - hard)
+def _hard(mesh, K, box, P, h, S, ss: int = 4):
+    """(N, S, S) the hard silhouette at params P rendered ss x ss times finer and averaged: its
+    pixel-area coverage, as the observed mask's area-filtered crop."""
+    hard = render.render(mesh, pose_from_params(P, h), K, S * ss, S * ss, box=box).mask.astype(jnp.float32)
+    return hard.reshape(hard.shape[:-2] + (S, ss, S, ss)).mean((-3, -1))
+
+
+def _bias(mesh, K, box, P, k, h, S):
+    """(N, S, S) stop-gradient soft - hard silhouette at params P: the renderer's excess, so that
+    the debiased residual compares like with like (`_hard`)."""
+    soft = render.silhouette(mesh, pose_from_params(P, h), K, S, S, box=box, sharpness=k)
+    return jax.lax.stop_gradient(soft - _hard(mesh, K, box, P, h, S))
+
+
+def _iou(hard, target):
+    """() IoU of two (S, S) masks in [0, 1], each read as above one half (1 where both are empty)."""
+    a, b = hard > 0.5, target > 0.5
+    return jnp.sum(a & b) / jnp.maximum(jnp.sum(a | b), 1)
+
+
+def start_iou(mesh, K, box, target, xypsi, cfg: AlignConfig) -> jax.Array:
+    """() IoU of the observed mask `target` (S, S) in the crop `box` (4,) and the hard silhouette
+    (area coverage) at the planar pose xypsi (3,): `AlignConfig.skip_iou`'s test."""
+    P = params_from_xypsi(jnp.asarray(xypsi, jnp.float32))[None]
+    return _iou(_hard(mesh, K, box, P, cfg.camera_height_m, cfg.crop)[0], target)
 
 
 def _lm_stage(residuals, P, k, bias, free, iters: int, cfg: AlignConfig):
@@ -347,41 +373,54 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     zero_bias = jnp.zeros((1, S, S), jnp.float32)
     lr0 = jnp.asarray(cfg.lr, jnp.float32)
     b1, b2, eps = 0.9, 0.999, 1e-12
-    n_st = len(cfg.stages)
-    bias = zero_bias
-    for si, stage in enumerate(cfg.stages):
-        k, iters = jnp.float32(stage[0]), int(stage[1])
-        free = jnp.asarray([1.0, 1.0, 0.0 if stage[2:] == ("xy",) else 1.0], jnp.float32)
-        debias = si >= n_st - cfg.debias_stages
-        bias = _bias(mesh, K, box, P, k, h, S) if debias else zero_bias
-        if cfg.optimizer == "lm":
-            P = _lm_stage(residuals, P, k, bias, free, iters, cfg)
-            continue
-        L, G = vg(P, k, bias)
-        lr = jnp.broadcast_to(lr0 * free * 0.5 ** max(si - 1, 0), (N, 3))
-
-        def body(t, st, k=k, bias=bias):
-            P, L, G, m, v, lr = st
-            m = b1 * m + (1 - b1) * G
-            v = b2 * v + (1 - b2) * G * G
-            tt = (t + 1).astype(jnp.float32)
-            step = lr * (m / (1 - b1 ** tt)) / (jnp.sqrt(v / (1 - b2 ** tt)) + eps)  # eps: 0/0 guard on held params
-            C = P - step
-            Lc, Gc = vg(C, k, bias)
-            acc = (Lc < L) & jnp.isfinite(Lc)
-            P = jnp.where(acc[:, None], C, P)
-            G = jnp.where(acc[:, None], Gc, G)
-            L = jnp.where(acc, Lc, L)
-            lr = jnp.where(acc[:, None], lr, 0.5 * lr)
-            return P, L, G, m, v, lr
-
-        st = (P, L, G, jnp.zeros_like(P), jnp.zeros_like(P), lr)
-        P, L, G, _, _, _ = jax.lax.fori_loop(0, iters, body, st)
-    L = losses(P, jnp.float32(cfg.stages[-1][0]), bias)
-    # the initial estimate, unmoved, scored as the winners were (last stage's loss)
     k_last = jnp.float32(cfg.stages[-1][0])
-    bias0 = _bias(mesh, K, box, p0[None], k_last, h, S) if cfg.debias_stages else zero_bias
-    L_init = losses(p0[None], k_last, bias0)[0]
+    hard0 = _hard(mesh, K, box, p0[None], h, S)  # (1, S, S)
+    # the initial estimate, unmoved, scored as the winners are (last stage's loss; debiased at p0,
+    # the residual is exactly the hard silhouette's)
+    if cfg.debias_stages:
+        L_init = jnp.mean((hard0[0] - target) ** 2)
+    else:
+        L_init = losses(p0[None], k_last, zero_bias)[0]
+
+    def optimise(P):
+        """The stages from the starts P (N, 3): (final params, their last stage's losses (N,))."""
+        n_st = len(cfg.stages)
+        bias = zero_bias
+        for si, stage in enumerate(cfg.stages):
+            k, iters = jnp.float32(stage[0]), int(stage[1])
+            free = jnp.asarray([1.0, 1.0, 0.0 if stage[2:] == ("xy",) else 1.0], jnp.float32)
+            debias = si >= n_st - cfg.debias_stages
+            bias = _bias(mesh, K, box, P, k, h, S) if debias else zero_bias
+            if cfg.optimizer == "lm":
+                P = _lm_stage(residuals, P, k, bias, free, iters, cfg)
+                continue
+            L, G = vg(P, k, bias)
+            lr = jnp.broadcast_to(lr0 * free * 0.5 ** max(si - 1, 0), (N, 3))
+
+            def body(t, st, k=k, bias=bias):
+                P, L, G, m, v, lr = st
+                m = b1 * m + (1 - b1) * G
+                v = b2 * v + (1 - b2) * G * G
+                tt = (t + 1).astype(jnp.float32)
+                step = lr * (m / (1 - b1 ** tt)) / (jnp.sqrt(v / (1 - b2 ** tt)) + eps)  # eps: 0/0 guard on held params
+                C = P - step
+                Lc, Gc = vg(C, k, bias)
+                acc = (Lc < L) & jnp.isfinite(Lc)
+                P = jnp.where(acc[:, None], C, P)
+                G = jnp.where(acc[:, None], Gc, G)
+                L = jnp.where(acc, Lc, L)
+                lr = jnp.where(acc[:, None], lr, 0.5 * lr)
+                return P, L, G, m, v, lr
+
+            st = (P, L, G, jnp.zeros_like(P), jnp.zeros_like(P), lr)
+            P, L, G, _, _, _ = jax.lax.fori_loop(0, iters, body, st)
+        return P, losses(P, k_last, bias)
+
+    skipped = jnp.bool_(False) if cfg.skip_iou is None else _iou(hard0[0], target) >= cfg.skip_iou
+    if cfg.skip_iou is None:
+        P, L = optimise(P)
+    else:  # the start already agrees with the mask: every hypothesis stays, scored as the start
+        P, L = jax.lax.cond(skipped, lambda P: (P, jnp.full((N,), L_init)), optimise, P)
     # Ties go to the hypothesis nearest the initial estimate: near head-on and tail-on views the
     # silhouette hardly changes with the heading, and the mirror / flipped hypotheses then score
     # within noise of the right one (measured: 9 of 50 circle frames chose a wrong one by < 30 %).
@@ -403,11 +442,12 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     out = init + jax.lax.stop_gradient(xyp_best - init)
     out = out.at[2].set(init[2] + jax.lax.stop_gradient(turn))
     out = out.at[2].set(wrap_angle(out[2]))  # wrapped; gradient 1
-    accepted = ~declined if cfg.max_score is None else ~declined & (L_best <= cfg.max_score)
+    accepted = ~declined & ~skipped if cfg.max_score is None else ~declined & ~skipped & (L_best <= cfg.max_score)
     if cfg.min_turn > 0:
         accepted = accepted & (jnp.abs(turn) > cfg.min_turn)
     if cfg.max_shift is not None:
         accepted = accepted & (jnp.hypot(*(xyp_best[:2] - init[:2])) <= cfg.max_shift * jnp.hypot(init[0], init[1]))
     out = jnp.where(accepted, out, init)
     conf = jnp.where(accepted, conf, 0.0)
-    return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted)
+    return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted,
+                       skipped)
