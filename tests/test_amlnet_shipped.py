@@ -229,7 +229,7 @@ def test_shipped_segmenter(tiny_bop_set):
     assert np.median(iou) > 0.7, np.round(iou, 2)
     cfg, stage = load_stage(segmenter=path)
     assert cfg.align == SEGMENTER_ALIGN and stage.segmenter.cfg.name == "segmenter_fine_cpu"
-    assert SEGMENTER_ALIGN.min_turn > 0 and SEGMENTER_ALIGN.max_shift is not None
+    assert SEGMENTER_ALIGN.min_turn > 0 and SEGMENTER_ALIGN.max_shift is not None and SEGMENTER_ALIGN.skip_iou is not None
     import tyro
 
     from rhaml_jax import evaluate
@@ -238,5 +238,6 @@ def test_shipped_segmenter(tiny_bop_set):
         args = tyro.cli(evaluate.Args, args=["--data", str(tiny_bop_set), "--zoom-mirror", "--segmenter", str(path), *flags])
         align = evaluate._load(args, ("iml", "ir"))[0].refiner.align
         assert (align == SEGMENTER_ALIGN) == gated and align.stages == SEGMENTER_ALIGN.stages
+        assert (align.skip_iou is None) == (not gated)  # without the gates nothing is skipped either
     off = load_stage(segmenter="none")
     assert off[0].align is None and off[1].segmenter is None

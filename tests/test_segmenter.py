@@ -112,7 +112,7 @@ def test_refine_with_a_segmenter_declines_a_start_behind_the_camera(run, bop_set
     cfg = RefineConfig(align=AlignConfig(crop=32, stages=((2.0, 2),), coarse_stages=((1.0, 1, "xy"),)))
     behind = jnp.array([-2.0, 0.1, 0.3])
     r = refine(None, mesh, image, jnp.asarray(f.K), behind, cfg, segmenter=seg)
-    assert bool(r.declined) and np.allclose(r.xypsi, behind) and np.all(np.isfinite(r.pose))
+    assert bool(r.declined) and np.allclose(r.xypsi, behind) and np.all(np.isfinite(r.pose)) and not bool(r.align_skipped)
     r = refine(None, mesh, image, jnp.asarray(f.K), jnp.asarray(f.xypsi, jnp.float32), cfg, segmenter=seg)
     assert not bool(r.declined) and np.all(np.isfinite(r.xypsi))
     m = observed_mask(seg, image, jnp.array([10.0, 10.0, 90.0, 90.0]))
