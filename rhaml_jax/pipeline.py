@@ -161,9 +161,11 @@ class PipelineResult(NamedTuple):
 
 
 def _chunked(f, xs, chunk: int):
-    """f over the leading axis of the pytree xs, `chunk` frames per call (lax.map)."""
+    """f over the leading axis of the pytree xs, `chunk` frames per call (lax.map). At 1 each call
+    sees one unbatched frame: a `jax.lax.cond` in f then runs one branch (lax.map's batch_size,
+    even 1, vmaps f, and a vmapped cond runs both)."""
     n = jax.tree.leaves(xs)[0].shape[0]
-    return jax.lax.map(f, xs, batch_size=min(chunk, n))
+    return jax.lax.map(f, xs, batch_size=None if chunk == 1 else min(chunk, n))
 
 
 def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> PipelineResult:
