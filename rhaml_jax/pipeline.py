@@ -72,8 +72,8 @@ class PipelineConfig:
     # frames per IR call: at 1 each frame is refined alone, so `jax.lax.cond` skips the work a frame
     # does not need (frames that are not candidates; the alignment where its start already fits the
     # segmenter's mask, `AlignConfig.skip_iou`); vmapped frames run both branches. On this CPU one
-    # at a time measured as fast as 32 vmapped (267 against 299 ms per frame of the default stage,
-    # BENCHMARKS.md "Skipping the alignment"); a GPU may want more
+    # at a time is faster than 32 vmapped even without a skip (151-152 against 173-176 ms per frame
+    # of the default stage, BENCHMARKS.md "Skipping the alignment"); a GPU may want more
     ir_chunk: int = 1
     # batch pgo: calibrate the observations' range error from odometry (pgo.fuse_calibrated), then
     # fuse again with the ranges corrected; its priors keep it near 0 where the path does not tell

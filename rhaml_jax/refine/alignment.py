@@ -374,7 +374,8 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     lr0 = jnp.asarray(cfg.lr, jnp.float32)
     b1, b2, eps = 0.9, 0.999, 1e-12
     k_last = jnp.float32(cfg.stages[-1][0])
-    hard0 = _hard(mesh, K, box, p0[None], h, S)  # (1, S, S)
+    # (1, S, S) the start's hard silhouette, for its debiased score and the skip test
+    hard0 = _hard(mesh, K, box, p0[None], h, S) if cfg.debias_stages or cfg.skip_iou is not None else None
     # the initial estimate, unmoved, scored as the winners are (last stage's loss; debiased at p0,
     # the residual is exactly the hard silhouette's)
     if cfg.debias_stages:
@@ -416,10 +417,11 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
             P, L, G, _, _, _ = jax.lax.fori_loop(0, iters, body, st)
         return P, losses(P, k_last, bias)
 
-    skipped = jnp.bool_(False) if cfg.skip_iou is None else _iou(hard0[0], target) >= cfg.skip_iou
     if cfg.skip_iou is None:
+        skipped = jnp.bool_(False)
         P, L = optimise(P)
-    else:  # the start already agrees with the mask: every hypothesis stays, scored as the start
+    else:  # where the start already agrees with the mask every hypothesis stays, scored as the start
+        skipped = _iou(hard0[0], target) >= cfg.skip_iou
         P, L = jax.lax.cond(skipped, lambda P: (P, jnp.full((N,), L_init)), optimise, P)
     # Ties go to the hypothesis nearest the initial estimate: near head-on and tail-on views the
     # silhouette hardly changes with the heading, and the mirror / flipped hypotheses then score
