@@ -285,16 +285,17 @@ def _lm_stage(residuals, P, k, bias, free, iters: int, cfg: AlignConfig):
     N = P.shape[0]
     hstep = jnp.asarray(cfg.fd_step, P.dtype) * free  # held parameters: no column
     E = jnp.eye(3, dtype=P.dtype) * hstep  # (3, 3) rows: the FD offsets
+    div = jnp.maximum(hstep, 1e-12)[None, :, None]  # guard: a held parameter's column is 0 / 1e-12 = 0
     max_step = jnp.asarray(cfg.max_step, P.dtype)
 
     def body(_, st):
         P, r, lam = st
         if cfg.fd == "forward":
-            J = (residuals(P[:, None] + E[None], k, bias[:, None]) - r[:, None]) / jnp.maximum(hstep, 1e-12)[None, :, None]
+            J = (residuals(P[:, None] + E[None], k, bias[:, None]) - r[:, None]) / div
         else:
             Q = jnp.concatenate([P[:, None] + E[None], P[:, None] - E[None]], 1)  # (N, 6, 3)
             rq = residuals(Q, k, bias[:, None])  # (N, 6, M)
-            J = (rq[:, :3] - rq[:, 3:]) / (2 * jnp.maximum(hstep, 1e-12))[None, :, None]  # (N, 3, M); guard: held
+            J = (rq[:, :3] - rq[:, 3:]) / (2 * div)  # (N, 3, M)
         J = J * free[None, :, None]
         A = jnp.einsum("nim,njm->nij", J, J)
         g = jnp.einsum("nim,nm->ni", J, r)
