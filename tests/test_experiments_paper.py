@@ -116,8 +116,11 @@ def test_stage_diagnostics(table, tmp_path):
 
 def test_table_iii_names_the_cascade(table):
     """experiments/table_iii.py with the shipped cascade named (--refiner, --fine-refiner,
-    --segmenter) gives Table I's RHAML row (the same pipeline on the same frames), for both
-    information models; without the fine refiner it gives another."""
+    --segmenter) gives Table I's RHAML row (the same networks on the same frames; table_iii names
+    no scorer, and the default stage's scorer keeps every heading of these frames, so the two
+    compiled programs differ and their rows agree to rounding: IR maps single frames, whose
+    floats XLA rounds per program), for both information models; without the fine refiner it
+    gives another."""
     import table_iii
 
     from rhaml_jax.amlnet import shipped_checkpoint
@@ -126,13 +129,15 @@ def test_table_iii_names_the_cascade(table):
     out, res = table
     args = ["--ours", str(out.parents[1] / "ours"), "--frames", "4", "--combos", "iml,ir,pgo", "--out", str(out.parent / "t3.json"),
             "--refiner", str(shipped_checkpoint(DEFAULT_REFINER)), "--segmenter", str(shipped_checkpoint(DEFAULT_SEGMENTER))]
-    keys = ("dx_cm", "dy_cm", "dpsi_deg", "ate", "detection")
     fines = ["--fine-refiner", *(str(shipped_checkpoint(n)) for n in DEFAULT_FINE_REFINERS)]
     cascade = table_iii.main([*args, *fines])
     assert [r["information"] for r in cascade["rows"]] == ["noise_model", "paper"]
     assert json.loads((out.parent / "t3.json").read_text()) == json.loads(json.dumps(cascade))
     row = cascade["rows"][0]
-    assert {k: row[k] for k in keys} == {k: res["rows"]["rhaml"]["ours"][k] for k in keys}
+    ref = res["rows"]["rhaml"]["ours"]
+    assert row["detection"] == ref["detection"]
+    for k in ("dx_cm", "dy_cm", "dpsi_deg", "ate"):
+        np.testing.assert_allclose(row[k], ref[k], rtol=2e-3, err_msg=k)
     assert row["detection"]["tp"] == 8  # IR ran on every frame
     ir = [table_iii.main([*args, *more, "--combos", "iml,ir"])["rows"][0]["dx_cm"]
           for more in (fines, [])]
