@@ -6,8 +6,8 @@ default now). Medians of interleaved rounds in one process, so their ratios hold
     python experiments/bench_ir_skip.py --data DIR --iml-json RUN.json [--data DIR --iml-json RUN.json ...]
         [--frames 32] [--repeats 3] [--json out.json]
 
-Frames: every `stride`-th observed frame of each set that the stored pipeline run (`evaluate
---json`) detected, started from its IML estimate (`iml_est`).
+Frames: `--frames` of each set's frames that the stored pipeline run (`evaluate --json`) detected,
+spread evenly over the set, each started from its IML estimate (`iml_est`).
 """
 
 from __future__ import annotations
