@@ -18,3 +18,16 @@ def timed(fn, repeats: int):
         out = jax.block_until_ready(fn())
         ts.append(time.perf_counter() - t)
     return out, statistics.median(ts)
+
+
+def interleaved(calls: dict, repeats: int) -> dict:
+    """{name: median seconds} of `repeats` rounds in which every zero-argument call of `calls` (already
+    compiled) runs once in turn, each waiting for its device arrays: side by side, so that the ratios
+    hold on a busy machine."""
+    ts = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, fn in calls.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn())
+            ts[name].append(time.perf_counter() - t)
+    return {name: statistics.median(v) for name, v in ts.items()}

@@ -12,8 +12,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
-import time
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -25,6 +25,9 @@ from rhaml_jax.planar import wrap_angle
 from rhaml_jax.refine import SEGMENTER_ALIGN
 from rhaml_jax.refine.alignment import align_crop, crop_box, params_from_xypsi, pose_from_params
 from rhaml_jax.robots import load_robot
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import interleaved  # noqa: E402
 
 
 def frames(n: int, seed: int = 0):
@@ -64,18 +67,14 @@ def main():
         many = (masks, boxes, jnp.asarray(init))
         calls[name] = (fn, one, many)
         jax.block_until_ready(fn(*one)), jax.block_until_ready(fn(*many))  # compile both shapes
-    times = {name: {"one": [], "batch": []} for name in variants}
-    for _ in range(a.repeats):  # interleaved: each round times every variant once
-        for name, (fn, one, many) in calls.items():
-            for key, args in (("one", one), ("batch", many)):
-                t = time.perf_counter()
-                jax.block_until_ready(fn(*args))
-                times[name][key].append(time.perf_counter() - t)
+    # interleaved: each round times every variant once, on one frame and on the batch
+    sec = interleaved({(name, key): (lambda fn=fn, args=args: fn(*args)) for name, (fn, one, many) in calls.items()
+                       for key, args in (("one", one), ("batch", many))}, a.repeats)
     rows = []
     for name, (fn, _, many) in calls.items():
         d = np.asarray(fn(*many)) - gt
-        rows.append({"variant": name, "ms_one_frame": 1e3 * statistics.median(times[name]["one"]),
-                     "ms_per_frame_batched": 1e3 * statistics.median(times[name]["batch"]) / a.batch,
+        rows.append({"variant": name, "ms_one_frame": 1e3 * sec[(name, "one")],
+                     "ms_per_frame_batched": 1e3 * sec[(name, "batch")] / a.batch,
                      "dxy_cm_mean": float(100 * np.hypot(d[:, 0], d[:, 1]).mean()),
                      "dpsi_deg_mean": float(np.rad2deg(np.abs(wrap_angle(d[:, 2]))).mean())})
         print(json.dumps(rows[-1]), flush=True)

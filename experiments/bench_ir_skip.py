@@ -15,8 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
-import time
+import sys
 from pathlib import Path
 
 import jax
@@ -24,6 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhaml_jax import data, refine
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import interleaved  # noqa: E402
 
 
 def load(root: Path, run: Path, n: int):
@@ -62,15 +64,10 @@ def main() -> None:
     for root, run in zip(a.data, a.iml_json):
         x = tuple(jnp.asarray(v) for v in load(root, run, a.frames))
         res = {k: jax.block_until_ready(f(*x)) for k, f in fns.items()}  # compiles each
-        ms = {k: [] for k in fns}
-        for _ in range(a.repeats):
-            for k, f in fns.items():
-                t = time.perf_counter()
-                jax.block_until_ready(f(*x))
-                ms[k].append(1e3 * (time.perf_counter() - t) / len(x[0]))
+        sec = interleaved({k: (lambda f=f: f(*x)) for k, f in fns.items()}, a.repeats)
         (plain, _), (skip, skipped) = res["one at a time, no skip"], res["one at a time, skip"]
         out[str(root)] = {"frames": len(x[0]), "skipped": int(np.sum(skipped)),
-                          "ms_per_frame": {k: round(statistics.median(v), 1) for k, v in ms.items()},
+                          "ms_per_frame": {k: round(1e3 * v / len(x[0]), 1) for k, v in sec.items()},
                           "max_position_change_m": float(jnp.abs(skip[:, :2] - plain[:, :2]).max())}
         print(root, json.dumps(out[str(root)]), flush=True)
     if a.json:
