@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pipeline_from_json import fused, metric_overrides  # noqa: E402
+from pipeline_from_json import detections, fused, metric_overrides  # noqa: E402
 
 from rhaml_jax.data import read_bop  # noqa: E402
 from rhaml_jax.metrics import flipped  # noqa: E402
@@ -66,12 +66,14 @@ def per_frame(path: Path, data: Path, metrics: dict | None = None) -> dict[str, 
     run["metrics"] = run["metrics"] | (metrics or {})
     rows = run["frames"]
     scene = load_scene(list(group_scenes(read_bop(data)).values())[0])
-    det, obs, gt = np.array([r["detected"] for r in rows]), np.asarray(scene.observed), np.asarray(scene.gt)
-    ests = {"IML": np.array([r["iml_est"] for r in rows]), "IML+PGO": fused(rows, scene, "iml_est", det, run["metrics"])}
+    (det, det_all), obs, gt = detections(rows, run["metrics"]), np.asarray(scene.observed), np.asarray(scene.gt)
+    ests = {"IML": (np.array([r["iml_est"] for r in rows]), det), "IML+PGO": (fused(rows, scene, "iml_est", det, run["metrics"]), det)}
     if "ir_est" in rows[0]:
-        ests |= {"IML+IR": np.array([r["ir_est"] for r in rows]), "IML+IR+PGO": fused(rows, scene, "ir_est", det, run["metrics"])}
-    out, k = {}, det & obs
-    for row, est in ests.items():
+        ests |= {"IML+IR": (np.array([r["ir_est"] for r in rows]), det),
+                 "IML+IR+PGO": (fused(rows, scene, "ir_est", det_all, run["metrics"]), det_all)}
+    out = {}
+    for row, (est, d) in ests.items():
+        k = d & obs
         q = {"ATE": sq_twist(est[obs], gt[obs]), "position": np.sum((est[obs, :2] - gt[obs, :2]) ** 2, axis=1)}
         out[row] = {"q": q, "flips": int(np.sum(flipped(est[k, 2], gt[k, 2]))), "detected": int(k.sum())}
     return out

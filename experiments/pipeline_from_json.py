@@ -14,7 +14,9 @@ stored IML flip probability predicts IML's flips over the detected frames (`zoom
 Brier score, calibration error, ROC area), one line per set. `--metric KEY JSON` refits the pose-graph
 rows with the runs' stored metric KEY set to that value (e.g. `--metric range_window null`: one
 range-model transform for the whole sequence, `PipelineConfig.range_window`; `--metric
-range_window_max_scale 0.02`).
+range_window_max_scale 0.02`; `--metric track_iou 0.7`: of the frames the graph's second look joined,
+only those whose mask IoU reaches 0.7). The second look (`evaluate --track-iou`) is part of
+IML+IR+PGO only: the other rows count the frames it joined as not detected, as their pipelines would.
 """
 
 from __future__ import annotations
@@ -50,12 +52,31 @@ def pgo_config(metrics: dict | None, refined: bool = False) -> pipeline.Pipeline
                                    range_window_max_scale=m.get("range_window_max_scale"))
 
 
+def second_look(rows: list[dict], metrics: dict | None = None) -> np.ndarray:
+    """(N,) bool: the frames the graph's second look joined (`evaluate --track-iou`; none without
+    it). With `metrics` "track_iou" above the run's own, only those whose mask IoU reaches it: the
+    run of a stricter threshold, constructed."""
+    t = (metrics or {}).get("track_iou") or 0.0
+    return np.array([bool(r.get("second_look", {}).get("joined")) and r["second_look"]["mask_iou"] >= t for r in rows])
+
+
+def detections(rows: list[dict], metrics: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(detected without the second look, detected with it) (N,) bool: the IML, IML+PGO and IML+IR
+    rows are pipelines without it (it needs IR and the pose graph); IML+IR+PGO's is the second."""
+    det, joined = np.array([r["detected"] for r in rows]), second_look(rows, metrics)
+    first = det & ~np.array([bool(r.get("second_look", {}).get("joined")) for r in rows])
+    return first, first | joined
+
+
 def fused(rows: list[dict], scene, key: str, detected: np.ndarray, metrics: dict | None = None) -> np.ndarray:
     """The pipeline's fused estimates (N, 3) of the stored `key` estimates (`pipeline.fuse_estimates`
-    as the run's `metrics` say it fused, planar observations as the stored rows give them)."""
+    as the run's `metrics` say it fused, planar observations as the stored rows give them; for
+    "ir_est", the second look's where it joined)."""
     seq = scene.seq
-    xypsi = jnp.asarray([r[key] for r in rows], jnp.float32)
-    flip = jnp.asarray([r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"] for r in rows], jnp.float32)
+    joined = second_look(rows, metrics) if key == "ir_est" else np.zeros(len(rows), bool)
+    xypsi = jnp.asarray([r["second_look"]["est"] if j else r[key] for r, j in zip(rows, joined)], jnp.float32)
+    flip = jnp.asarray([r["second_look"]["flip_prob"] if j else r["ir_flip_prob" if key == "ir_est" else "iml_flip_prob"]
+                        for r, j in zip(rows, joined)], jnp.float32)
     n = len(rows)
     est = Estimate(xypsi=xypsi, o=jnp.ones(n, jnp.float32), flip_prob=flip, roll_pitch=jnp.zeros((n, 2), jnp.float32))
     fusion, _ = FUSE(pgo_config(metrics, key == "ir_est"), est, jnp.asarray(detected), seq.odom_a, seq.odom_b, seq.a_observes)
@@ -109,13 +130,13 @@ def main() -> None:
             if "iml_est" not in rows[0]:
                 ap.error(f"{js}: no iml_est rows (run evaluate --modules iml[,ir,pgo])")
             scene = load_scene(list(group_scenes(read_bop(Path(data))).values())[0])
-            det, o = np.array([r["detected"] for r in rows]), np.array([r["o"] for r in rows])
+            (det, det_all), o = detections(rows, metrics), np.array([r["o"] for r in rows])
             add = lambda k, est, d=det: acc.setdefault(k, []).append((est, d, scene.observed, scene.gt))  # noqa: E731
             add("IML", np.array([r["iml_est"] for r in rows]))
             add("IML+PGO", fused(rows, scene, "iml_est", det, metrics))
             if "ir_est" in rows[0]:  # an `evaluate --modules iml` run has IML's rows only
                 add("IML+IR", np.array([r["ir_est"] for r in rows]))
-                add("IML+IR+PGO", fused(rows, scene, "ir_est", det, metrics))
+                add("IML+IR+PGO", fused(rows, scene, "ir_est", det_all, metrics), det_all)
             for t in a.thresholds:
                 add(f"IML+PGO, o >= {t}", fused(rows, scene, "iml_est", o >= t, metrics), o >= t)
             k = det & scene.observed

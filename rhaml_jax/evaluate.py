@@ -106,6 +106,10 @@ class Args:
     """pgo: a second objectness threshold under 0.5; frames scored between the two are refined
     and called detected where their estimate agrees with the pose graph of the confident frames
     (online: the frames before it that joined; `PipelineConfig.redetect_threshold`); None: off"""
+    track_iou: float | None = None
+    """pgo (batch) with ir and a segmenter: the graph's second look (`PipelineConfig.track_iou`): frames
+    not detected are refined from the graph's answer and join where the segmenter's mask and the
+    refined silhouette agree at this IoU or more; None: off"""
     no_range_calibration: bool = False
     """pgo (batch): fuse the observations as they are, without calibrating their range error from
     odometry (`pgo.fuse_calibrated`) and fusing again"""
@@ -198,7 +202,8 @@ def _load(args: Args, modules):
     cfg = pipeline.PipelineConfig(modules=modules, pgo_mode=args.pgo_mode, fusion=fusion, chunk=args.batch,
                                   ir_chunk=args.ir_batch,
                                   calibrate_range=not args.no_range_calibration, range_window=args.range_window,
-                                  range_window_max_scale=args.range_window_max_scale, redetect_threshold=args.redetect_threshold)
+                                  range_window_max_scale=args.range_window_max_scale, redetect_threshold=args.redetect_threshold,
+                                  track_iou=args.track_iou)
     return (pipeline.PipelineModel(iml_model, cfg, refiner), pipeline.PipelineParams(iml_params, refiner_params))
 
 
@@ -233,7 +238,7 @@ def run(args: Args) -> dict:
     if "ir" in modules:  # detected frames where IR's estimate stands (else it declined or did not converge)
         m["ir_applied"] = int(sum(r["ir_applied"] for r in rows if r["detected"]))
     if "pgo" in modules:
-        m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold,
+        m |= {"pgo_mode": args.pgo_mode, "redetect_threshold": args.redetect_threshold, "track_iou": args.track_iou,
               "information": "paper" if args.paper_information else "noise_model",
               "range_calibration": not args.no_range_calibration, "range_window": args.range_window,
               "range_window_max_scale": args.range_window_max_scale,
@@ -246,7 +251,9 @@ def frame_rows(run, fused: bool) -> list[dict]:
     """Per-frame JSON rows of one scene (DESIGN.md section 5, plus o, detected, IML's estimate
     and flip probability, with ir the refined estimate, its roll and pitch (rad) and flip probability
     and whether it was applied (False where the refiner declined or did not converge, or nothing was
-    detected: IML's estimate stands), and, with pgo, whether the pose graph kept the observation and turned it by 180 deg)."""
+    detected: IML's estimate stands), with pgo, whether the pose graph kept the observation and turned it by 180 deg, and
+    where the graph's second look tried the frame (`--track-iou`), its estimate, flip probability and mask IoU and
+    whether it joined; `detected` includes the frames it joined)."""
     res, data = run.result, run.data
     rows = []
     for i, f in enumerate(data.frames):
@@ -262,6 +269,10 @@ def frame_rows(run, fused: bool) -> list[dict]:
                     "ir_applied": bool(np.any(np.asarray(res.ir.xypsi[i]) != np.asarray(res.iml.xypsi[i])))}
         if res.fusion is not None:
             row |= {"pgo_inlier": bool(res.fusion.inlier[i]), "pgo_flipped": bool(res.fusion.flipped[i])}
+        look = res.second_look
+        if look is not None and look.tried[i]:  # the graph's second look (`--track-iou`)
+            row["second_look"] = {"est": [float(v) for v in look.estimate.xypsi[i]], "flip_prob": float(look.estimate.flip_prob[i]),
+                                  "mask_iou": float(look.mask_iou[i]), "joined": bool(look.joined[i])}
         rows.append(row)
     return rows
 

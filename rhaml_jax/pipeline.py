@@ -12,7 +12,9 @@ chosen in `PipelineConfig.modules` as the paper's flexible architecture allows, 
   (`rhaml_jax.pgo.fuse`: batch, the whole sequence, as the paper evaluates; or
   `pgo.fuse_online`: frame k fused from frames <= k only, compiled once for the length N);
   with a second, lower detection threshold (`redetect`: frames scored just under it join the
-  graph where they agree with the graph of the confident frames; online, in the same pass).
+  graph where they agree with the graph of the confident frames; online, in the same pass), and
+  optionally the graph's second look (`track`: the frames the detection left out refined from the
+  graph's answer, joining where a segmenter's mask confirms the robot is there).
 
 Everything between the images and the fused poses is traced: the function jits, vmaps over
 sequences (same N), shards over devices (`shard_sequences`) and differentiates end to end
@@ -34,7 +36,7 @@ from rhaml_jax.iml import Estimate, IMLModel, IMLParams, localize
 from rhaml_jax.metrics import DETECTION_THRESHOLD
 
 __all__ = ["MODULES", "RANGE_WINDOW_MAX_SCALE", "RANGE_WINDOW_REFINED", "REDETECT_HEADING_DEG", "PipelineConfig", "agrees", "fuse_estimates", "redetect", "PipelineModel",
-           "PipelineParams", "PipelineResult", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences"]
+           "PipelineParams", "PipelineResult", "SecondLook", "Sequence", "parse_modules", "run", "run_jit", "shard_sequences", "track"]
 
 MODULES = ("iml", "ir", "pgo")
 RANGE_WINDOW_REFINED = 200  # rows per transform of the range model for refined estimates (PipelineConfig.range_window)
@@ -99,6 +101,13 @@ class PipelineConfig:
     # is no graph to agree with and it is unused.
     redetect_threshold: float | None = 0.2
     redetect_gate: float = 0.1
+    # batch pgo with ir and a segmenter: the graph's guided second look (`track`). Every valid frame
+    # the detection left out, where the graph fused from the detected frames has an answer, is
+    # refined again from that answer; it is called detected where the segmenter's mask and the
+    # refined pose's silhouette agree at this IoU or more (`refine.RefineResult.mask_iou`: the robot
+    # is where the refined pose puts it) and the refined pose agrees with the graph as a re-detected
+    # frame must (redetect_gate); the graph is then fused again. None: off
+    track_iou: float | None = None
 
     def __post_init__(self):
         parse_modules(",".join(self.modules))
@@ -117,6 +126,12 @@ class PipelineConfig:
                                  "under the detection threshold")
             if not self.redetect_gate > 0.0:
                 raise RhamlError(f"redetect_gate {self.redetect_gate}: must be positive (a fraction of the range)")
+        if self.track_iou is not None:
+            if not 0.0 < self.track_iou <= 1.0:
+                raise RhamlError(f"track_iou {self.track_iou}: must lie in (0, 1] (an IoU) or be None")
+            if not ("ir" in self.modules and "pgo" in self.modules and self.pgo_mode == "batch"):
+                raise RhamlError(f"track_iou {self.track_iou}: the graph's second look needs modules ir and pgo with "
+                                 f"pgo_mode 'batch' (got modules {','.join(self.modules)}, pgo_mode {self.pgo_mode!r})")
 
     @property
     def calibration_window(self) -> int | None:
@@ -158,6 +173,20 @@ class PipelineResult(NamedTuple):
     xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
     fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
     range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)
+    second_look: SecondLook | None = None  # the graph's second look (PipelineConfig.track_iou; None: off)
+
+
+class SecondLook(NamedTuple):
+    """The graph's second look (`PipelineConfig.track_iou`) over the N frames. `PipelineResult.detected`
+    includes the frames it joined, and the pose graph fused their `xypsi`; `PipelineResult.ir` is
+    IR's first pass, from IML's estimates."""
+
+    tried: jax.Array  # (N,) bool: refined from the graph's answer (valid, not detected, the graph has an answer)
+    estimate: Estimate  # (N,) IR's estimates from there where tried (and IR neither declined nor failed to
+    #                     converge), else `PipelineResult.ir`'s
+    mask_iou: jax.Array  # (N,) the segmenter's mask against the silhouette at the learned iterations' end
+    #                      (refine.RefineResult.mask_iou; -1 where not tried)
+    joined: jax.Array  # (N,) bool: called detected by it (`track`)
 
 
 def _chunked(f, xs, chunk: int):
@@ -180,7 +209,7 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
     detected = seq.valid & (est.o >= DETECTION_THRESHOLD)
     low = cfg.redetect_threshold if "pgo" in cfg.modules else None
     candidates = detected if low is None else seq.valid & (est.o >= low)
-    current, ir = est, None
+    current, ir, look = est, None, None
     if "ir" in cfg.modules:
         ir = _refine(model, params, seq, est, candidates)
         current = ir
@@ -190,8 +219,39 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
             fusion, c = fuse_estimates(cfg, current, detected, seq.odom_a, seq.odom_b, seq.a_observes)
         else:
             fusion, c, detected = redetect(cfg, current, detected, candidates, seq.odom_a, seq.odom_b, seq.a_observes)
+        if cfg.track_iou is not None:
+            if params.refiner.segmenter is None:
+                raise RhamlError("track_iou: the graph's second look checks the refined pose against a segmenter's "
+                                 "mask, and the IR stage has none (refine.load_stage gives the shipped one)")
+            # the graph answers only where it has a rendezvous (`_fuse`): elsewhere nothing to look from
+            trusted = jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape)
+            want = seq.valid & ~detected & trusted
+            second = _refine_frames(model, params, seq, fusion.relative, want)
+            joined = track(cfg, want, fusion.relative, second)
+            look = SecondLook(want, _merge(ir, second, want & ~second.declined & second.converged),
+                              jnp.where(want, second.mask_iou, -1.0), joined)
+            detected = detected | joined
+            fusion, c = fuse_estimates(cfg, look.estimate, detected, seq.odom_a, seq.odom_b, seq.a_observes)
         xypsi = fusion.relative
-    return PipelineResult(est, ir, detected, xypsi, fusion, c)
+    return PipelineResult(est, ir, detected, xypsi, fusion, c, look)
+
+
+def track(cfg: PipelineConfig, want, predicted, second):
+    """`PipelineConfig.track_iou`'s verdict -> (N,) bool: of the frames `want` (N,) refined from the
+    graph's answer `predicted` (N, 3) (`second`, a refine.RefineResult over the N frames), those that
+    converged, whose segmenter's mask fits the refined pose (mask_iou >= cfg.track_iou: the robot
+    is there) and whose pose agrees with the graph as a re-detected frame must."""
+    return (want & ~second.declined & second.converged & (second.mask_iou >= cfg.track_iou)
+            & agrees(second.xypsi, predicted, cfg.redetect_gate))
+
+
+def _merge(est: Estimate, out, keep) -> Estimate:
+    """The estimates `est` (N,) with IR's `out` (refine.RefineResult (N,)) where `keep` (N,)."""
+    pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+    # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the
+    # alignment's margin over the other-facing hypothesis (0 when it did not run) lowers IML's doubt
+    flip = jnp.where(out.flip_prob >= 0, out.flip_prob, est.flip_prob * (1.0 - out.flip_confidence))
+    return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(flip, est.flip_prob), pick(out.roll_pitch, est.roll_pitch))
 
 
 def redetect(cfg: PipelineConfig, est: Estimate, detected, candidates, odom_a, odom_b, a_observes):
@@ -265,6 +325,14 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
     (`RefineConfig.max_final_step`), keep IML's estimate."""
     if model.refiner is None or params.refiner is None:
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
+    out = _refine_frames(model, params, seq, est.xypsi, detected)
+    return _merge(est, out, detected & ~out.declined & out.converged)
+
+
+def _refine_frames(model: PipelineModel, params: PipelineParams, seq: Sequence, start, which):
+    """refine.RefineResult (N,) of IR from the planar poses `start` (N, 3) on the frames `which`
+    (N,) bool, one frame at a time (`PipelineConfig.ir_chunk`); the others are not refined
+    (declined, their start returned)."""
     from rhaml_jax import refine
 
     p = params.refiner
@@ -282,13 +350,7 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
 
         return jax.lax.cond(candidate, run, skip, image, K, xypsi)
 
-    out = _chunked(one, (seq.images, seq.K, est.xypsi, detected), model.config.ir_chunk)
-    keep = detected & ~out.declined & out.converged
-    pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
-    # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the
-    # alignment's margin over the other-facing hypothesis (0 when it did not run) lowers IML's doubt
-    flip = jnp.where(out.flip_prob >= 0, out.flip_prob, est.flip_prob * (1.0 - out.flip_confidence))
-    return Estimate(pick(out.xypsi, est.xypsi), est.o, pick(flip, est.flip_prob), pick(out.roll_pitch, est.roll_pitch))
+    return _chunked(one, (seq.images, seq.K, start, which), model.config.ir_chunk)
 
 
 run_jit = jax.jit(run, static_argnums=0)

@@ -337,3 +337,52 @@ def test_redetect_in_the_pipeline_runs_and_never_loses_a_detection(stage, mode):
     cfg = pipeline.PipelineConfig(modules=("iml", "pgo"), pgo_mode=mode, redetect_threshold=0.05)
     res = pipeline.run_jit(pipeline.PipelineModel(m, cfg), pipeline.PipelineParams(p), seq)
     assert bool(jnp.all(res.detected >= base.detected)) and bool(jnp.all(jnp.isfinite(res.xypsi)))
+
+
+def _refined(xypsi, declined, converged, mask_iou):
+    """A refine.RefineResult (N,) with these fields, the rest neutral (no scorer, no alignment margin)."""
+    from rhaml_jax import refine
+
+    n = len(xypsi)
+    z = lambda *shape: jnp.zeros((n, *shape), jnp.float32)  # noqa: E731
+    return refine.RefineResult(z(7), jnp.asarray(xypsi, jnp.float32), z(2) + 0.01, jnp.asarray(declined), z(), z(), z(2, 3),
+                               jnp.full((n,), -1.0), jnp.asarray(converged), jnp.zeros(n, bool), jnp.asarray(mask_iou, jnp.float32))
+
+
+def test_track_joins_only_the_frames_the_mask_confirms():
+    """`pipeline.track`: of the frames refined from the graph's answer, one joins where it
+    converged, the segmenter's mask fits it (mask_iou >= track_iou) and it agrees with the graph;
+    not where the mask does not fit, the refined pose left the graph, the refiner declined or did
+    not converge, nor a frame that was not to be tried."""
+    cfg = pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), track_iou=0.7)
+    n = 7
+    predicted = jnp.tile(jnp.array([[3.0, 0.5, 0.3]], jnp.float32), (n, 1))
+    near = np.array([3.05, 0.48, 0.35], np.float32)
+    xypsi = np.stack([near, near, near, [3.8, 0.5, 0.3], near, near, near])  # frame 3: 0.8 m from the graph's answer
+    second = _refined(xypsi, declined=[False, False, False, False, True, False, False],
+                      converged=[True, True, True, True, True, False, True], mask_iou=[0.9, 0.7, 0.3, 0.9, 0.9, 0.9, 0.9])
+    want = jnp.array([True] * 6 + [False])
+    np.testing.assert_array_equal(np.asarray(pipeline.track(cfg, want, predicted, second)),
+                                  [True, True, False, False, False, False, False])
+
+
+def test_track_config_errors(stage):
+    """track_iou outside (0, 1], or without ir and batch pgo, is refused naming the field; with an
+    IR stage that has no segmenter the pipeline says what is missing."""
+    from rhaml_jax import refine, render
+    from rhaml_jax.robots import load_robot
+
+    for bad in (0.0, 1.5):
+        with pytest.raises(RhamlError, match="track_iou"):
+            pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), track_iou=bad)
+    for kw in ({"modules": ("iml", "pgo")}, {"modules": ("iml", "ir")}, {"modules": ("iml", "ir", "pgo"), "pgo_mode": "online"}):
+        with pytest.raises(RhamlError, match="track_iou"):
+            pipeline.PipelineConfig(track_iou=0.7, **kw)
+    m, p = stage
+    rc = refine.get_refiner_config("refiner_micro")
+    stage_params = refine.StageParams(refine.Refiner(refine.net.init_params(rc, jax.random.key(3)), rc),
+                                      render.as_mesh(load_robot("pioneer3dx")))
+    model = pipeline.PipelineModel(m, pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), chunk=2, track_iou=0.7),
+                                   refine.RefineConfig(n_iter=1))
+    with pytest.raises(RhamlError, match="segmenter"):
+        pipeline.run(model, pipeline.PipelineParams(p, stage_params), _sequence(n=2))

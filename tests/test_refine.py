@@ -193,7 +193,7 @@ def test_forward_differences_align_as_central_ones():
 def test_skip_iou_keeps_a_start_that_already_fits_the_mask():
     """skip_iou: a start whose hard silhouette already matches the mask (the truth: IoU 1) is
     not optimised (skipped, not accepted, the start returned exactly); a start 25 deg off (IoU
-    below 0.95) is aligned as without the test, frame by frame (lax.cond) and vmapped (both
+    below 0.95, as `AlignResult.start_iou` reports) is aligned as without the test, frame by frame (lax.cond) and vmapped (both
     branches run); a value outside (0, 1] is refused naming the field."""
     from rhaml_jax import crop as _crop
     from rhaml_jax.refine.alignment import crop_box, start_iou
@@ -209,7 +209,9 @@ def test_skip_iou_keeps_a_start_that_already_fits_the_mask():
     b = [one(skip, s) for s in starts]
     v = jax.jit(lambda c: jax.vmap(lambda i: align(robot, m, K, i, c))(starts), static_argnums=0)(skip)
     box = crop_box(robot, K, starts[1], skip)
-    assert float(start_iou(robot, K, box, _crop.crop_image(m[..., None], box, 48, 48)[..., 0], starts[1], skip)) < 0.95
+    iou1 = float(start_iou(robot, K, box, _crop.crop_image(m[..., None], box, 48, 48)[..., 0], starts[1], skip))
+    assert iou1 < 0.95 and abs(float(b[1].start_iou) - iou1) < 1e-6  # AlignResult.start_iou: the same test
+    assert float(b[0].start_iou) >= 0.95 and float(a[0].start_iou) == float(b[0].start_iou)
     assert bool(b[0].skipped) and not bool(b[0].accepted) and np.array_equal(np.asarray(b[0].xypsi), np.asarray(starts[0]))
     assert bool(v.skipped[0]) and np.array_equal(np.asarray(v.xypsi[0]), np.asarray(starts[0]))
     assert not bool(b[1].skipped) and bool(b[1].accepted)

@@ -152,6 +152,8 @@ class RefineResult(NamedTuple):
     #                       initial pose is returned as for a declined start (always True without a refiner)
     align_skipped: jax.Array  # () bool: the alignment was skipped, its start already fitting the mask
     #                           (`AlignConfig.skip_iou`; False where no alignment ran)
+    mask_iou: jax.Array  # () IoU of the alignment's observed mask (a segmenter's) and the hard silhouette at the
+    #                      learned iterations' end (`AlignResult.start_iou`; -1 where no alignment ran, 0 where declined)
 
 
 def _T_cam(xypsi, h):
@@ -238,7 +240,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
     elif mask is None and segmenter is None:
         raise RhamlError("refine: without a refiner, pass the observed mask (mask=...) or a segmenter for the alignment")
     score = jnp.float32(0.0)
-    skipped = jnp.bool_(False)
+    skipped, iou = jnp.bool_(False), jnp.float32(-1.0)
     if acfg is not None:
         if segmenter is not None:
             r = align_to(mesh, lambda b: alignment_target(segmenter, image, b, acfg.crop, cfg.mask_threshold), K, xyp,
@@ -248,7 +250,7 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         else:
             r = align_crop(mesh, target, box, K, xyp, Ww, Hh, acfg)
         flip_prob = _flip_prob_after(flip_prob, xyp[2], r.xypsi[2])
-        xyp, score, conf, skipped = r.xypsi, r.score, r.flip_confidence, r.skipped
+        xyp, score, conf, skipped, iou = r.xypsi, r.score, r.flip_confidence, r.skipped, r.start_iou
         if refiner is not None and fine is not None and cfg.fine_after_align:
             xyp, roll_pitch = learned(xyp, cfg.fine_after_align, fine, cfg.mirror != "none")
     keep_init = declined | ~converged
@@ -260,7 +262,8 @@ def refine(refiner: Refiner | None, mesh, image, K, init_xypsi, cfg: RefineConfi
         jaxlie.SO3.from_rpy_radians(roll_pitch[0], roll_pitch[1], xyp[2]),
         jnp.stack([xyp[0], xyp[1], jnp.zeros_like(xyp[0])]))
     return RefineResult(T.wxyz_xyz, xyp, roll_pitch, declined, jnp.where(keep_init, 0.0, conf), score, its,
-                        jnp.where(keep_init, -1.0, flip_prob), converged | declined, skipped & ~keep_init)
+                        jnp.where(keep_init, -1.0, flip_prob), converged | declined, skipped & ~keep_init,
+                        jnp.where(declined, 0.0, iou))
 
 
 def _flip_prob_after(flip_prob, psi_before, psi_after):

@@ -150,6 +150,8 @@ class AlignResult(NamedTuple):
     #                       min_turn, moved by at most max_shift, not skipped)
     skipped: jax.Array  # () bool: the start already agreed with the mask (AlignConfig.skip_iou): not optimised
     #                      (hypotheses stay at their starts, scores all the start's)
+    start_iou: jax.Array  # () IoU of the observed mask and the hard silhouette at the start (`start_iou`; 0 when
+    #                        declined): whether the robot is where the start puts it
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -375,8 +377,9 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     lr0 = jnp.asarray(cfg.lr, jnp.float32)
     b1, b2, eps = 0.9, 0.999, 1e-12
     k_last = jnp.float32(cfg.stages[-1][0])
-    # (1, S, S) the start's hard silhouette, for its debiased score and the skip test
-    hard0 = _hard(mesh, K, box, p0[None], h, S) if cfg.debias_stages or cfg.skip_iou is not None else None
+    # (1, S, S) the start's hard silhouette, for its debiased score, the skip test and `start_iou`
+    hard0 = _hard(mesh, K, box, p0[None], h, S)
+    iou0 = _iou(hard0[0], target)
     # the initial estimate, unmoved, scored as the winners are (last stage's loss; debiased at p0,
     # the residual is exactly the hard silhouette's)
     if cfg.debias_stages:
@@ -422,7 +425,7 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
         skipped = jnp.bool_(False)
         P, L = optimise(P)
     else:  # where the start already agrees with the mask every hypothesis stays, scored as the start
-        skipped = _iou(hard0[0], target) >= cfg.skip_iou
+        skipped = iou0 >= cfg.skip_iou
         P, L = jax.lax.cond(skipped, lambda P: (P, jnp.full((N,), L_init)), optimise, P)
     # Ties go to the hypothesis nearest the initial estimate: near head-on and tail-on views the
     # silhouette hardly changes with the heading, and the mirror / flipped hypotheses then score
@@ -453,4 +456,4 @@ def align_crop(mesh, target, box, K, init_xypsi, width: int, height: int, cfg: A
     out = jnp.where(accepted, out, init)
     conf = jnp.where(accepted, conf, 0.0)
     return AlignResult(out, _planar_pose(out), jnp.zeros(2, jnp.float32), declined, conf, L_best, xyp_all, L, box, accepted,
-                       skipped)
+                       skipped, jnp.where(declined, 0.0, iou0))
