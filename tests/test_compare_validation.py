@@ -71,3 +71,22 @@ def test_an_extra_sequence_must_name_a_look(tmp_path, monkeypatch, capsys):
         with pytest.raises(SystemExit) as e:
             cv.main()
         assert e.value.code == 2 and msg in capsys.readouterr().err
+
+
+def test_the_second_look_counts_in_iml_ir_pgo_only():
+    """pipeline_from_json.detections / second_look: a frame the graph's second look joined
+    (`evaluate --track-iou`) is detected for IML+IR+PGO only (the other rows' pipelines have no
+    second look); `--metric track_iou T` above the run's keeps only the joined frames whose mask IoU
+    reaches T, and frames it did not join never count."""
+    _cv()  # puts experiments/ on the path
+    import pipeline_from_json as pj
+
+    rows = [{"detected": True}, {"detected": True, "second_look": {"joined": True, "mask_iou": 0.6, "est": [3, 0, 0], "flip_prob": 0.1}},
+            {"detected": True, "second_look": {"joined": True, "mask_iou": 0.9, "est": [3, 0, 0], "flip_prob": 0.1}},
+            {"detected": False, "second_look": {"joined": False, "mask_iou": 0.95, "est": [3, 0, 0], "flip_prob": 0.1}},
+            {"detected": False}]
+    first, both = pj.detections(rows)
+    np.testing.assert_array_equal(first, [True, False, False, False, False])
+    np.testing.assert_array_equal(both, [True, True, True, False, False])
+    np.testing.assert_array_equal(pj.detections(rows, {"track_iou": 0.7})[1], [True, False, True, False, False])
+    np.testing.assert_array_equal(pj.second_look(rows, {"track_iou": 0.3}), [False, True, True, False, False])

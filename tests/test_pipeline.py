@@ -386,3 +386,48 @@ def test_track_config_errors(stage):
                                    refine.RefineConfig(n_iter=1))
     with pytest.raises(RhamlError, match="segmenter"):
         pipeline.run(model, pipeline.PipelineParams(p, stage_params), _sequence(n=2))
+
+
+def test_the_second_look_in_the_pipeline():
+    """`PipelineConfig.track_iou` in the pipeline (micro networks; an IML whose objectness varies
+    from frame to frame, and a segmenter that calls every pixel robot): the frames tried are the
+    valid ones the detection left out; the frames it joins are among them and the detections are
+    the first pass's plus those; at track_iou 1 (an IoU this mask never reaches) nothing joins and
+    the answer is the run's without the second look."""
+    from rhaml_jax import refine, render
+    from rhaml_jax.refine import segmenter as G
+    from rhaml_jax.robots import load_robot
+
+    net, znet = build(get_config("micro"), jax.random.key(1)), build(get_config("tiny_zoom"), jax.random.key(2))
+    # the objectness column of the head scaled up: o then differs between the random images
+    w = jax.tree_util.tree_map_with_path(
+        lambda p, v: v.at[..., 0].multiply(3e4) if jax.tree_util.keystr(p) == "['head']['w'].value" else v, net.params)
+    p = iml.IMLParams((_biased(w, jnp.array([0.15, 3.0, 0.0, 0.0])), net.batch_stats), (znet.params, znet.batch_stats))
+    m = iml.IMLModel(net, znet, zoom_mirror=True)
+    rc = refine.get_refiner_config("refiner_micro")
+    sc = G.get_segmenter_config("segmenter_micro")
+    sp = G.init_params(sc, jax.random.key(4))
+    sp["out"]["b"] = jnp.array([3.0])
+    stage_params = refine.StageParams(refine.Refiner(refine.net.init_params(rc, jax.random.key(3)), rc),
+                                      render.as_mesh(load_robot("pioneer3dx")), G.Segmenter(sp, sc))
+    rcfg = refine.RefineConfig(align=refine.AlignConfig(crop=32, stages=((2.0, 1),), coarse_stages=()), n_iter=1)
+    seq = _sequence()._replace(valid=np.array([True] * (N - 1) + [False]))
+
+    def run(track_iou):
+        cfg = pipeline.PipelineConfig(modules=("iml", "ir", "pgo"), chunk=2, redetect_threshold=None, track_iou=track_iou)
+        return pipeline.run_jit(pipeline.PipelineModel(m, cfg, rcfg), pipeline.PipelineParams(p, stage_params), seq)
+
+    base, loose, strict = run(None), run(0.05), run(1.0)
+    first = np.asarray(base.detected)
+    assert 0 < first.sum() < N - 1, np.asarray(base.iml.o)  # some frames to look at again
+    assert base.second_look is None
+    look = loose.second_look
+    np.testing.assert_array_equal(np.asarray(look.tried), np.asarray(seq.valid) & ~first)
+    joined = np.asarray(look.joined)
+    assert not np.any(joined & ~np.asarray(look.tried))
+    np.testing.assert_array_equal(np.asarray(loose.detected), first | joined)
+    assert np.all(np.asarray(look.mask_iou)[np.asarray(look.tried)] >= 0) and np.all(np.asarray(look.mask_iou)[~np.asarray(look.tried)] == -1)
+    assert bool(jnp.all(jnp.isfinite(loose.xypsi)))
+    assert not np.any(np.asarray(strict.second_look.joined))
+    np.testing.assert_array_equal(np.asarray(strict.detected), first)
+    np.testing.assert_allclose(np.asarray(strict.xypsi), np.asarray(base.xypsi), atol=1e-5)
