@@ -94,9 +94,9 @@ def summary(parts) -> dict:
 
 
 def metric_overrides(ap: argparse.ArgumentParser, flag: str, pairs: list[list[str]]) -> dict:
-    """`flag KEY JSON` pairs -> {KEY: value} (stored metrics to override: `pgo_config` reads them);
-    an unknown key or a value that is not JSON ends the script with one line."""
-    known = ("pgo_mode", "information", "range_calibration", "range_window", "range_window_max_scale")
+    """`flag KEY JSON` pairs -> {KEY: value} (stored metrics to override: `pgo_config` and
+    `second_look` read them); an unknown key or a value that is not JSON ends the script with one line."""
+    known = ("pgo_mode", "information", "range_calibration", "range_window", "range_window_max_scale", "track_iou")
     out = {}
     for key, value in pairs:
         if key not in known:
