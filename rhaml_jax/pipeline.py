@@ -169,7 +169,8 @@ class Sequence(NamedTuple):
 class PipelineResult(NamedTuple):
     iml: Estimate  # (N,) IML's estimates
     ir: Estimate | None  # (N,) after refinement (None without "ir")
-    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD, or re-detected (PipelineConfig.redetect_threshold)
+    detected: jax.Array  # (N,) bool: valid and o >= DETECTION_THRESHOLD, or re-detected (PipelineConfig.redetect_threshold),
+    #                      or joined by the second look (PipelineConfig.track_iou)
     xypsi: jax.Array  # (N, 3) the pipeline's answer: the observed robot in the observer's frame
     fusion: pgo.FusionResult | None  # the pose graph's result (None without "pgo")
     range_model: jax.Array  # (2,) c of the observations' range error rho = r exp(c0 + c1 (r - 4.5 m)) (0: none)

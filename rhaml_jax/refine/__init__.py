@@ -153,7 +153,8 @@ class RefineResult(NamedTuple):
     align_skipped: jax.Array  # () bool: the alignment was skipped, its start already fitting the mask
     #                           (`AlignConfig.skip_iou`; False where no alignment ran)
     mask_iou: jax.Array  # () IoU of the alignment's observed mask (a segmenter's) and the hard silhouette at the
-    #                      learned iterations' end (`AlignResult.start_iou`; -1 where no alignment ran, 0 where declined)
+    #                      alignment's start, the learned iterations' end with `SEGMENTER_ALIGN` (`AlignResult.start_iou`;
+    #                      -1 where no alignment ran, 0 where declined)
 
 
 def _T_cam(xypsi, h):
