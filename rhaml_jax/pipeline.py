@@ -224,9 +224,8 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
             if params.refiner.segmenter is None:
                 raise RhamlError("track_iou: the graph's second look checks the refined pose against a segmenter's "
                                  "mask, and the IR stage has none (refine.load_stage gives the shipped one)")
-            # the graph answers only where it has a rendezvous (`_fuse`): elsewhere nothing to look from
-            trusted = jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape)
-            want = seq.valid & ~detected & trusted
+            # where the graph has no answer there is nothing to look from
+            want = seq.valid & ~detected & _batch_answers(fusion, detected)
             second = _refine_frames(model, params, seq, fusion.relative, want)
             joined = track(cfg, want, fusion.relative, second)
             look = SecondLook(want, _merge(ir, second, want & ~second.declined & second.converged),
@@ -314,9 +313,14 @@ def _fuse(cfg: PipelineConfig, est: Estimate, detected, odom_a, odom_b, a_observ
                                         window_max_scale=cfg.range_window_max_scale)
     else:
         fusion = pgo.fuse(rv, cfg.fusion, valid=detected, flip_prob=est.flip_prob)
+    return fusion, c, _batch_answers(fusion, detected), detected
+
+
+def _batch_answers(fusion, detected):
+    """(N,) bool: the rows where a batch fusion of the `detected` frames has an answer."""
     # guard: a sequence without one usable rendezvous leaves the transform between the odometry
-    # frames undetermined (the fusion answers NaN)
-    return fusion, c, jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape), detected
+    # frames undetermined (the fusion answers NaN): then no row has an answer
+    return jnp.broadcast_to(jnp.any(fusion.inlier & detected), detected.shape)
 
 
 def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Estimate, detected) -> Estimate:
