@@ -228,7 +228,7 @@ def run(model: PipelineModel, params: PipelineParams, seq: Sequence) -> Pipeline
             want = seq.valid & ~detected & _batch_answers(fusion, detected)
             second = _refine_frames(model, params, seq, fusion.relative, want)
             joined = track(cfg, want, fusion.relative, second)
-            look = SecondLook(want, _merge(ir, second, want & ~second.declined & second.converged),
+            look = SecondLook(want, _merge(ir, second, want),
                               jnp.where(want, second.mask_iou, -1.0), joined)
             detected = detected | joined
             fusion, c = fuse_estimates(cfg, look.estimate, detected, seq.odom_a, seq.odom_b, seq.a_observes)
@@ -245,8 +245,10 @@ def track(cfg: PipelineConfig, want, predicted, second):
             & agrees(second.xypsi, predicted, cfg.redetect_gate))
 
 
-def _merge(est: Estimate, out, keep) -> Estimate:
-    """The estimates `est` (N,) with IR's `out` (refine.RefineResult (N,)) where `keep` (N,)."""
+def _merge(est: Estimate, out, refined) -> Estimate:
+    """The estimates `est` (N,) with IR's `out` (refine.RefineResult (N,)) on the frames `refined`
+    (N,) where IR neither declined nor failed to converge."""
+    keep = refined & ~out.declined & out.converged
     pick = lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
     # the scorer's own flip probability replaces IML's (its heading is the scorer's); else the
     # alignment's margin over the other-facing hypothesis (0 when it did not run) lowers IML's doubt
@@ -331,7 +333,7 @@ def _refine(model: PipelineModel, params: PipelineParams, seq: Sequence, est: Es
     if model.refiner is None or params.refiner is None:
         raise RhamlError("modules include ir but the pipeline has no refiner (refine.load_stage gives one)")
     out = _refine_frames(model, params, seq, est.xypsi, detected)
-    return _merge(est, out, detected & ~out.declined & out.converged)
+    return _merge(est, out, detected)
 
 
 def _refine_frames(model: PipelineModel, params: PipelineParams, seq: Sequence, start, which):
