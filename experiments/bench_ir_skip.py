@@ -54,8 +54,7 @@ def main() -> None:
     def compiled(c, batch):
         def one(x):
             image, K, init = x
-            r = refine.refine(sp.refiner, sp.mesh, image.astype(jnp.float32) / 255, K, init, c, segmenter=sp.segmenter,
-                              scorer=sp.scorer, fine=sp.fine)
+            r = refine.refine_stage(c, sp, image, K, init)
             return r.xypsi, r.align_skipped
         return jax.jit(lambda *x: jax.lax.map(one, x, batch_size=None if batch == 1 else batch))  # 1: unbatched, cond branches
 

@@ -83,8 +83,7 @@ def main() -> None:
     def per_frame(f):  # one frame at a time (lax.map without a batch size), as the pipeline runs IR
         return jax.jit(lambda *xs: jax.lax.map(lambda t: f(*t), xs))
 
-    stages = {k: per_frame(lambda i, K, s, c=c, q=q: refine.refine(q.refiner, q.mesh, i.astype(jnp.float32) / 255, K, s, c,
-                                                                   segmenter=q.segmenter, scorer=q.scorer, fine=q.fine).xypsi)
+    stages = {k: per_frame(lambda i, K, s, c=c, q=q: refine.refine_stage(c, q, i, K, s).xypsi)
               for k, (c, q) in stage_variants(cfg, sp, a.stages).items()}
     parts = {k: per_frame(f) for k, f in blocks(cfg, sp).items()}
     fns = stages | parts

@@ -342,14 +342,11 @@ def _refine_frames(model: PipelineModel, params: PipelineParams, seq: Sequence, 
     (declined, their start returned)."""
     from rhaml_jax import refine
 
-    p = params.refiner
-
     def one(frame):
         image, K, xypsi, candidate = frame
 
         def run(image, K, xypsi):
-            return refine.refine(p.refiner, p.mesh, image.astype(jnp.float32) / 255.0, K, xypsi, model.refiner,
-                                 segmenter=p.segmenter, scorer=p.scorer, fine=p.fine)
+            return refine.refine_stage(model.refiner, params.refiner, image, K, xypsi)
 
         def skip(image, K, xypsi):  # not a candidate: IML's estimate stays (declined), nothing rendered
             out = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(run, image, K, xypsi))

@@ -19,7 +19,7 @@ from rhaml_jax import camera, frames, render
 from rhaml_jax.camera import DEFAULT_CAMERA
 from rhaml_jax.data import load_bop_model, load_rgb, read_bop
 from rhaml_jax.errors import RhamlError
-from rhaml_jax.refine import RefineConfig, load_refiner, refine
+from rhaml_jax.refine import RefineConfig, StageParams, load_refiner, refine, refine_stage
 from rhaml_jax.refine import net as N
 from rhaml_jax.refine.train import RefinerBatch, RefinerSource
 from tests.conftest import train_tiny
@@ -365,6 +365,9 @@ def test_a_fine_refiner_runs_after_the_coarse_one(run, bop_set):
     np.testing.assert_allclose(np.asarray(both.iterates[:3]), np.asarray(alone.iterates), atol=1e-6)
     np.testing.assert_allclose(np.asarray(both.xypsi), np.asarray(both.iterates[-1]), atol=1e-6)
     assert np.abs(np.asarray(both.xypsi - alone.xypsi)).max() > 1e-4
+    u8 = jnp.asarray(load_rgb(f.rgb))  # refine_stage: the stage's networks, the pipeline's uint8 frame
+    staged = refine_stage(cfg, StageParams(coarse, mesh, fine=fine), u8, f.K, init)
+    np.testing.assert_allclose(np.asarray(staged.iterates), np.asarray(both.iterates), atol=1e-5)
     g = jax.grad(lambda r: jnp.sum(refine(coarse, mesh, img, f.K, init, cfg, fine=r).xypsi))(fine)
     leaves = jax.tree.leaves(g)
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves) and sum(float(jnp.abs(x).sum()) for x in leaves) > 0

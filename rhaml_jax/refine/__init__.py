@@ -4,6 +4,8 @@ silhouette alignment through our differentiable renderer.
 Public API:
 - `refine(refiner, mesh, image, K, init_xypsi, cfg, mask=None, segmenter=None, scorer=None, fine=None) -> RefineResult`:
   the pipeline's entry point (pure JAX, jit-able with cfg and the nets static, vmappable over frames);
+- `load_stage(...) -> (RefineConfig, StageParams)`, `refine_stage(cfg, stage, image, K, init_xypsi)`:
+  the default IR stage's networks, and `refine` with them;
 - `load_refiner(ckpt_dir, model=None) -> Refiner` (a checkpoint of another robot is refused);
 - `load_segmenter(ckpt_dir, model=None) -> Segmenter`, `observed_mask`: the robot's mask in a crop
   of the image, the alignment's target (rhaml_jax.refine.segmenter);
@@ -38,7 +40,7 @@ from rhaml_jax.refine.segmenter import Segmenter, SegmenterConfig, alignment_tar
 
 __all__ = ["DEFAULT_REFINER", "DEFAULT_FINE_REFINERS", "DEFAULT_MIRROR", "DEFAULT_SCORER", "DEFAULT_FLIP_THRESHOLD", "DEFAULT_SEGMENTER", "SEGMENTER_ALIGN", "load_stage", "AlignConfig", "AlignResult", "align", "align_crop", "RefinerConfig", "get_refiner_config", "Refiner",
            "RefineConfig", "RefineResult", "refine", "load_refiner", "export_refiner", "shipped_refiner",
-           "StageParams", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
+           "StageParams", "refine_stage", "heading_search", "view_starts", "check_ensemble", "mirror_update", "Scorer", "ScorerConfig", "load_scorer", "Segmenter", "SegmenterConfig", "load_segmenter", "observed_mask", "align_to"]
 
 
 # The corners of the cube of (log range, bearing, heading) offsets in signs, ordered in antipodal
@@ -503,6 +505,14 @@ class StageParams(NamedTuple):
     scorer: Scorer | None = None  # the heading scorer (None: the learned iterations keep the heading)
     fine: Refiner | tuple[Refiner, ...] | None = None  # a cascade's fine refiner (`RefinerConfig.starts` "fine";
     #                                                     a tuple: an ensemble, updates averaged; None: none)
+
+
+def refine_stage(cfg: RefineConfig, stage: StageParams, image, K, init_xypsi) -> RefineResult:
+    """`refine` with the stage's networks (`load_stage`'s pair): the pipeline's IR on one frame.
+    image (H, W, 3) uint8 or float in [0, 255], as the pipeline's frames and `iml` take them."""
+    image = jnp.asarray(image).astype(jnp.float32) / 255.0
+    return refine(stage.refiner, stage.mesh, image, K, init_xypsi, cfg, segmenter=stage.segmenter,
+                  scorer=stage.scorer, fine=stage.fine)
 
 
 def load_stage(ckpt_dir: str | Path | None = None, data_dir: str | Path | None = None, check_robot: bool = True,
