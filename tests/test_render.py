@@ -149,6 +149,55 @@ def test_binning_matches_all_pairs():
     np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=2e-5)
 
 
+def test_closed_winding_agrees_with_trimesh():
+    """`Mesh.winding`: +1 for a closed surface wound outwards (trimesh: watertight, consistently
+    wound, positive volume), -1 wound inwards, 0 with a face missing, repeated or turned."""
+    robot = load_robot("pioneer3dx")
+    hull = trimesh.convex.convex_hull(np.random.default_rng(0).normal(size=(40, 3)))
+    for m in (hull, trimesh.creation.box(), trimesh.Trimesh(robot.vertices, robot.faces, process=False)):
+        assert m.is_watertight and m.is_winding_consistent and m.volume > 0
+        v, f = np.asarray(m.vertices), np.asarray(m.faces)
+        turned = f.copy()
+        turned[0] = turned[0, ::-1]
+        assert float(R.as_mesh((v, f)).winding) == 1.0
+        assert float(R.as_mesh((v, f[:, ::-1])).winding) == -1.0
+        for bad in (f[1:], np.concatenate([f, f[:1]]), turned):
+            assert float(R.as_mesh((v, bad)).winding) == 0.0
+    assert float(builtin().winding) == 1.0
+
+
+def test_culled_back_faces_change_no_pixel_of_the_hard_render():
+    """A closed mesh's back faces are skipped (fewer pairs) and the mask and depth are the same as
+    with them (winding 0) in 50 random views (a camera inside a closed box: the test above)."""
+    mesh, Ts, out = fifty_views("builtin")
+    kept = R.render(mesh._replace(winding=jnp.float32(0.0)), Ts, CAM.K, CAM.width, CAM.height)
+    assert np.median(np.asarray(out.pairs) / np.asarray(kept.pairs)) < 0.7
+    np.testing.assert_array_equal(np.asarray(out.mask), np.asarray(kept.mask))
+    np.testing.assert_array_equal(np.asarray(out.depth), np.asarray(kept.depth))
+    # colours differ only where a back face tied a front one in depth and won on its face id
+    assert np.mean(np.any(np.asarray(out.rgb) != np.asarray(kept.rgb), -1)) < 1e-4
+
+
+def test_a_culled_soft_silhouette_is_binned_right_and_its_edge_nearer_the_hard_one():
+    """`RenderConfig.soft_cull`: the binned silhouette equals every pixel against every face (culled
+    alike) with fewer pairs visited, and at sharpness 8 per px its area is smaller than the uncut
+    one's (whose edges are the union of a front and a back face) and on average nearer the hard
+    silhouette's (area coverage; seams between front faces darken a little inside)."""
+    mesh, Ts = builtin(), two_views()
+    box = jnp.asarray([100.0, 80.0, 220.0, 200.0])
+    cull = R.RenderConfig(soft_cull=True)
+    a = R.silhouette(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=1.0, config=cull)
+    b = R.silhouette_naive(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=1.0, config=cull)
+    assert float(a.max()) > 0.9
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=2e-5)
+    pairs = [np.asarray(R.pairs_needed(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=1.0, config=c)) for c in (cull, R.RenderConfig())]
+    assert np.all(pairs[0] < 0.7 * pairs[1]), pairs
+    hard = np.asarray(R.render(mesh, Ts, CAM.K, 128, 128, box=box).mask, np.float32).reshape(2, 32, 4, 32, 4).mean((2, 4))
+    area = [np.asarray(R.silhouette(mesh, Ts, CAM.K, 32, 32, box=box, sharpness=8.0, config=c)).sum((1, 2)) / hard.sum((1, 2))
+            for c in (cull, R.RenderConfig())]
+    assert np.all(area[0] < area[1]) and np.mean(np.abs(area[0] - 1)) < np.mean(np.abs(area[1] - 1)), area
+
+
 def _loss_fn(mesh, K, sharpness, config):
     def loss(delta, T0, box, target):
         T = T0 @ jaxlie.SE3.exp(delta)

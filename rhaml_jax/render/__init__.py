@@ -50,6 +50,11 @@ class RenderConfig:
     soft_block: the same for `silhouette` (and its XLA-autodiff VJP); soft_block_bwd: the same
     for the backward pass of its custom VJP. chunk_pixels: pixel tests per step of the pair loop.
     near: near clipping plane (m). cutoff: a face's soft edge fades out at cutoff / sharpness px.
+    soft_cull: `silhouette` also skips a closed mesh's faces turned away from the camera (`Mesh.winding`;
+    `render` always does, which changes nothing there). About twice as fast, and the soft edge is
+    then the front face's alone rather than the union of the front and back faces sharing it, so
+    its 0.5 level sits nearer the hard edge; seams between front faces inside the silhouette are
+    no longer filled by the faces behind them (a pixel centred on one reads 0.75).
     vjp: "custom" (nearest-edge VJP) or "autodiff" (XLA's reverse mode over `capacity` pairs,
     pairs beyond it dropped; a reference for tests and benchmarks) for `silhouette`.
     """
@@ -62,6 +67,7 @@ class RenderConfig:
     cutoff: float = 7.0
     vjp: str = "custom"
     capacity: int = 16384
+    soft_cull: bool = False
 
 
 def _prepare(model, T_cam_model, K, width, height, box):
@@ -81,9 +87,14 @@ def _prepare(model, T_cam_model, K, width, height, box):
     return mesh, params, Ks, w, h, batch
 
 
-def _screen(mesh: Mesh, params, K, near) -> ScreenFaces:
+def _screen(mesh: Mesh, params, K, near, cull: bool) -> ScreenFaces:
+    """The mesh's faces on screen; `cull`: skip a closed mesh's back faces (`Mesh.winding`), only
+    where the whole mesh lies beyond the near plane: a camera inside the surface, or a near plane
+    cutting it open, sees back faces."""
     T = jaxlie.SE3(params)
-    return screen_faces(transform_points(T, mesh.vertices), mesh.faces, K, near)
+    v = transform_points(T, mesh.vertices)
+    winding = jnp.where(jnp.min(v[:, 2]) > near, mesh.winding, 0.0) if cull else 0.0
+    return screen_faces(v, mesh.faces, K, near, winding)
 
 
 @functools.partial(jax.jit, static_argnames=("width", "height", "config"))
@@ -92,7 +103,7 @@ def _silhouette(mesh, params, Ks, sharpness, width, height, config):
     size, size_b = chunk_size(blk, config.chunk_pixels), chunk_size(blk_b, config.chunk_pixels)
 
     def one(p, K):
-        sf = _screen(mesh, p, K, config.near)
+        sf = _screen(mesh, p, K, config.near, config.soft_cull)
         # The window margin only decides which pixels are visited (the taper makes the image
         # continuous across it): no gradient through it.
         margin = jax.lax.stop_gradient(config.cutoff / sharpness)
@@ -121,10 +132,10 @@ def silhouette(model, T_cam_model: jaxlie.SE3, K, width: int, height: int, *, sh
     return _silhouette(mesh, params, Ks, k, w, h, config).reshape(batch + (h, w))
 
 
-@functools.partial(jax.jit, static_argnames=("width", "height", "chunk", "near", "cutoff"))
-def _naive(mesh, params, Ks, sharpness, width, height, chunk, near, cutoff):
+@functools.partial(jax.jit, static_argnames=("width", "height", "chunk", "near", "cutoff", "cull"))
+def _naive(mesh, params, Ks, sharpness, width, height, chunk, near, cutoff, cull):
     def one(p, K):
-        sf = _screen(mesh, p, K, near)
+        sf = _screen(mesh, p, K, near, cull)
         return naive_coverage(sf, sharpness, width, height, chunk, cutoff)
 
     return jax.vmap(one)(params, Ks)
@@ -136,13 +147,13 @@ def silhouette_naive(model, T_cam_model, K, width: int, height: int, *, sharpnes
     and XLA's reverse mode: the baseline for benchmarks and a check of the binning."""
     mesh, params, Ks, w, h, batch = _prepare(model, T_cam_model, K, width, height, box)
     k = jnp.asarray(_checks.positive_scalar("sharpness", sharpness), mesh.vertices.dtype)
-    return _naive(mesh, params, Ks, k, w, h, chunk, config.near, config.cutoff).reshape(batch + (h, w))
+    return _naive(mesh, params, Ks, k, w, h, chunk, config.near, config.cutoff, config.soft_cull).reshape(batch + (h, w))
 
 
 @functools.partial(jax.jit, static_argnames=("width", "height", "config"))
 def _render(mesh, params, Ks, light_dir, ambient, diffuse, width, height, config):
     def one(p, K):
-        sf = _screen(mesh, p, K, config.near)
+        sf = _screen(mesh, p, K, config.near, True)
         return rasterize(sf, mesh.face_colors, width, height, block=config.block, chunk_pixels=config.chunk_pixels,
                          light_dir=light_dir, ambient=ambient, diffuse=diffuse, near=config.near)
 
@@ -169,10 +180,10 @@ def render(model, T_cam_model: jaxlie.SE3, K, width: int, height: int, *, box=No
     return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), out)
 
 
-@functools.partial(jax.jit, static_argnames=("width", "height", "block", "near"))
-def _needed(mesh, params, Ks, margin, width, height, block, near):
+@functools.partial(jax.jit, static_argnames=("width", "height", "block", "near", "cull"))
+def _needed(mesh, params, Ks, margin, width, height, block, near, cull):
     def one(p, K):
-        return layout(_screen(mesh, p, K, near), margin, width, height, block).needed
+        return layout(_screen(mesh, p, K, near, cull), margin, width, height, block).needed
 
     return jax.vmap(one)(params, Ks)
 
@@ -185,8 +196,9 @@ def pairs_needed(model, T_cam_model, K, width: int, height: int, *, box=None, sh
     """
     mesh, params, Ks, w, h, batch = _prepare(model, T_cam_model, K, width, height, box)
     if sharpness is None:
-        margin, block = 0.0, config.block
+        margin, block, cull = 0.0, config.block, True
     else:
         margin, block = config.cutoff / float(_checks.positive_scalar("sharpness", sharpness)), config.soft_block
-    out = _needed(mesh, params, Ks, jnp.asarray(margin, mesh.vertices.dtype), w, h, block, config.near)
+        cull = config.soft_cull
+    out = _needed(mesh, params, Ks, jnp.asarray(margin, mesh.vertices.dtype), w, h, block, config.near, cull)
     return out.reshape(batch)

@@ -74,8 +74,10 @@ def _clip_near(tri: jnp.ndarray, near: float):
     return jnp.stack(poly, 1), n
 
 
-def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, near: float) -> ScreenFaces:
-    """vertices_cam (V, 3) in the optical frame, faces (F, 3), K (3, 3) -> ScreenFaces."""
+def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, near: float, cull=0.0) -> ScreenFaces:
+    """vertices_cam (V, 3) in the optical frame, faces (F, 3), K (3, 3) -> ScreenFaces. cull (): a
+    closed mesh's `Mesh.winding` (+1 or -1) marks the faces turned away from the camera not valid
+    (skipped); 0 keeps them."""
     tri = vertices_cam[faces]  # (F, 3, 3)
     poly3, n = _clip_near(tri, near)
     has = n >= 3
@@ -97,7 +99,8 @@ def screen_faces(vertices_cam: jnp.ndarray, faces: jnp.ndarray, K: jnp.ndarray, 
     nlen = jnp.sqrt(nrm[:, 0] ** 2 + nrm[:, 1] ** 2 + nrm[:, 2] ** 2)
     nrm = nrm / jnp.maximum(nlen, 1e-30)[:, None]  # guard: zero-area 3D faces (already invalid)
     d = nrm[:, 0] * tri[:, 0, 0] + nrm[:, 1] * tri[:, 0, 1] + nrm[:, 2] * tri[:, 0, 2]
-    valid = valid & (jnp.abs(d) > 1e-9) & (nlen > 0)
+    # d < 0: the face's wound normal points towards the camera (it sees the side the winding calls outside)
+    valid = valid & (jnp.abs(d) > 1e-9) & (nlen > 0) & (cull * d <= 0)
     d_safe = jnp.where(jnp.abs(d) > 1e-9, d, 1.0)  # guard: plane through the camera centre
     Kinv = jnp.linalg.inv(K)
     inv_depth = (nrm @ Kinv) / d_safe[:, None]  # (n^T K^-1) [u, v, 1] / d

@@ -16,12 +16,34 @@ class Mesh(NamedTuple):
     """Triangle mesh in its model frame (metres).
 
     vertices: (V, 3) float; faces: (F, 3) int32 indices into vertices;
-    face_colors: (F, 3) float RGB in [0, 1].
+    face_colors: (F, 3) float RGB in [0, 1]; winding: () +1 if the surface is closed with its
+    faces wound counter-clockwise seen from outside, -1 if closed and wound the other way, 0
+    otherwise (`closed_winding`). Where it is not 0 the renderers skip the faces turned away from
+    the camera: from outside a closed surface the nearest face on every ray faces the camera, so
+    the hard render is unchanged (and `silhouette` culls only if asked, `RenderConfig.soft_cull`).
     """
 
     vertices: jnp.ndarray
     faces: jnp.ndarray
     face_colors: jnp.ndarray
+    winding: jnp.ndarray = np.float32(0.0)
+
+
+def closed_winding(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """`Mesh.winding` of a mesh (host-side NumPy): closed means every directed edge (a, b) of a face
+    occurs exactly once and its reverse (b, a) exactly once (each edge shared by two faces wound
+    alike); the sign is that of the enclosed volume. Faces of zero area count as faces."""
+    f = np.asarray(faces, np.int64)
+    n = int(np.asarray(vertices).shape[0])
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])  # (3F, 2) directed edges
+    fwd = e[:, 0] * n + e[:, 1]
+    rev = e[:, 1] * n + e[:, 0]
+    keys, counts = np.unique(fwd, return_counts=True)
+    if np.any(counts != 1) or np.any(e[:, 0] == e[:, 1]) or not np.all(np.isin(rev, keys)):
+        return 0.0
+    v = np.asarray(vertices, np.float64)[f]  # (F, 3, 3)
+    volume = np.einsum("fi,fi->", v[:, 0], np.cross(v[:, 1], v[:, 2])) / 6.0
+    return 0.0 if volume == 0 else float(np.sign(volume))
 
 
 def as_mesh(model, dtype=jnp.float32) -> Mesh:
@@ -60,7 +82,8 @@ def as_mesh(model, dtype=jnp.float32) -> Mesh:
     c = np.asarray(c)
     check_shape("model.face_colors", c, (f.shape[0], 3))
     check_finite("model.face_colors", c)
-    return Mesh(jnp.asarray(v, dtype), jnp.asarray(f, jnp.int32), jnp.asarray(c, dtype))
+    return Mesh(jnp.asarray(v, dtype), jnp.asarray(f, jnp.int32), jnp.asarray(c, dtype),
+                jnp.asarray(closed_winding(v, f), dtype))
 
 
 def _is_tracer(a) -> bool:
