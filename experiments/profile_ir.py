@@ -4,11 +4,13 @@ alignment with other step schedules. Medians of interleaved rounds in one proces
 busy machine); frames as `bench_ir_skip.py` picks them.
 
     python experiments/profile_ir.py --data DIR --iml-json RUN.json [--frames 16] [--repeats 3]
-        [--stages 3,3,2,2 ...] [--json out.json]
+        [--stages 3,3,2,2 ...] [--cull] [--json out.json]
 
 `--stages A,B,C,D`: the default alignment (`refine.SEGMENTER_ALIGN`) with these LM steps in its four
 stages, its ms per frame, and how far its estimates move from the default's (largest position
-change, frames whose heading moves by more than 1 deg).
+change, frames whose heading moves by more than 1 deg). `--cull`: the default stage with its
+alignment's soft silhouettes culled (`AlignConfig.cull`) and not, and with no back faces culled
+at all (the model's `Mesh.winding` 0: the hard renders too), moved as the schedules are.
 """
 
 from __future__ import annotations
@@ -32,8 +34,8 @@ from _timing import interleaved  # noqa: E402
 from bench_ir_skip import load  # noqa: E402
 
 
-def stage_variants(cfg, sp, schedules: list[str]) -> dict:
-    """Name -> (RefineConfig, StageParams): the default, its parts removed, other schedules."""
+def stage_variants(cfg, sp, schedules: list[str], cull: bool = False) -> dict:
+    """Name -> (RefineConfig, StageParams): the default, its parts removed, other schedules, culling."""
     R = dataclasses.replace
     bare = sp._replace(segmenter=None)
     fine = sp.fine[0] if isinstance(sp.fine, tuple) else sp.fine
@@ -47,6 +49,11 @@ def stage_variants(cfg, sp, schedules: list[str]) -> dict:
             raise SystemExit(f"--stages {text}: give {len(cfg.align.stages)} step counts")
         stages = tuple((st[0], n, *st[2:]) for st, n in zip(cfg.align.stages, steps))
         out[f"alignment steps {text}"] = (R(cfg, align=R(cfg.align, stages=stages)), sp)
+    if cull:
+        for on in (True, False):
+            out[f"alignment cull {on}"] = (R(cfg, align=R(cfg.align, cull=on)), sp)
+        out["alignment cull False, no hard culling"] = (R(cfg, align=R(cfg.align, cull=False)),
+                                                         sp._replace(mesh=sp.mesh._replace(winding=jnp.float32(0.0))))
     return out
 
 
@@ -63,9 +70,9 @@ def blocks(cfg, sp) -> dict:
     return {"segmenter's mask": lambda i, K, x: alignment_target(sp.segmenter, i.astype(jnp.float32) / 255, box(K, x), ac.crop,
                                                                    cfg.mask_threshold),
             f"hard silhouette {4 * ac.crop} px (the skip test's, 4x4 per crop pixel)": lambda i, K, x: hard(K, x, 4),
-            f"soft silhouette {ac.crop} px": lambda i, K, x: render.silhouette(
+            **{f"soft silhouette {ac.crop} px{', culled' if c else ''}": lambda i, K, x, c=c: render.silhouette(
                 mesh, A.pose_from_params(A.params_from_xypsi(x)[None], ac.camera_height_m), K, ac.crop, ac.crop, box=box(K, x),
-                sharpness=8.0)}
+                sharpness=8.0, config=render.RenderConfig(soft_cull=c)) for c in (False, True)}}
 
 
 def main() -> None:
@@ -75,6 +82,7 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=16)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--stages", nargs="*", default=[])
+    p.add_argument("--cull", action="store_true")
     p.add_argument("--json", type=Path, default=None)
     a = p.parse_args()
     cfg, sp = refine.load_stage()
@@ -84,7 +92,7 @@ def main() -> None:
         return jax.jit(lambda *xs: jax.lax.map(lambda t: f(*t), xs))
 
     stages = {k: per_frame(lambda i, K, s, c=c, q=q: refine.refine_stage(c, q, i, K, s).xypsi)
-              for k, (c, q) in stage_variants(cfg, sp, a.stages).items()}
+              for k, (c, q) in stage_variants(cfg, sp, a.stages, a.cull).items()}
     parts = {k: per_frame(f) for k, f in blocks(cfg, sp).items()}
     fns = stages | parts
     res = {k: jax.block_until_ready(f(*x)) for k, f in fns.items()}  # compiles each
@@ -93,7 +101,7 @@ def main() -> None:
     moved = {k: {"max_position_change_cm": round(100 * float(np.hypot(*(np.asarray(res[k])[:, :2] - ref[:, :2]).T).max()), 2),
                  "frames_heading_moved_over_1deg": int(np.sum(np.degrees(np.abs(np.angle(np.exp(1j * (np.asarray(res[k])[:, 2]
                                                                                                     - ref[:, 2]))))) > 1))}
-             for k in stages if k.startswith("alignment steps")}
+             for k in stages if k.startswith("alignment ")}
     out = {"data": str(a.data), "frames": len(x[0]), "ms_per_frame": {k: round(1e3 * v / len(x[0]), 2) for k, v in sec.items()},
            "schedules": moved}
     print(json.dumps(out, indent=1))
