@@ -80,6 +80,20 @@ def test_alignment_recovers_noisy_and_flipped_starts():
     np.testing.assert_allclose(np.asarray(frames.xypsi_from_se3(T)), r.xypsi[:3], atol=1e-5)
 
 
+def test_culled_soft_silhouettes_align_as_the_uncut_ones():
+    """`AlignConfig.cull` (no back faces in the soft silhouettes): the noisy, flipped and converged
+    starts end within the tolerances above and near the uncut alignment's results."""
+    gt, init, r, _ = cases()
+    idx = [0, 1, 2, 4]
+    culled = jax.jit(jax.vmap(lambda m, i: align(mesh(), m, K, i, dataclasses.replace(CFG, cull=True)).xypsi))(
+        _masks(gt[idx]), jnp.asarray(init[idx]))
+    d = np.asarray(culled) - gt[idx]
+    d[:, 2] = np.arctan2(np.sin(d[:, 2]), np.cos(d[:, 2]))
+    assert np.all(np.abs(d[:, :2]) < 0.06) and np.all(np.abs(np.rad2deg(d[:, 2])) < 2.0), d
+    assert np.all(np.abs(d[-1, :2]) < 0.02) and abs(d[-1, 2]) < np.deg2rad(1.5), d[-1]  # the converged start
+    assert np.all(np.hypot(*(np.asarray(culled)[:, :2] - r.xypsi[idx, :2]).T) < 0.05)
+
+
 def test_declines_a_start_behind_the_camera_without_nan():
     _, init, r, g = cases()
     assert r.declined[3] and r.flip_confidence[3] == 0 and not r.declined[4]
