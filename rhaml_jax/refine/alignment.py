@@ -122,7 +122,7 @@ class AlignConfig:
     end, within centimetres, a longer move follows a wrong mask (`refine.SEGMENTER_ALIGN`)"""
     cull: bool = False
     """render the soft silhouettes without a closed model's back faces (`render.RenderConfig.soft_cull`):
-    about twice as fast, and their edge nearer the hard one"""
+    half the pairs to visit, and their edge nearer the hard one"""
     skip_iou: float | None = None
     """skip the optimisation (keep the initial estimate, `AlignResult.skipped`) where the observed
     mask and the initial estimate's hard silhouette already agree at this IoU or more (`start_iou`;
