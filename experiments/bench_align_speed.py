@@ -1,6 +1,7 @@
 """The silhouette alignment's cost, side by side: `refine.SEGMENTER_ALIGN` (the alignment from a
-refiner cascade's end) with central and with forward finite differences (`AlignConfig.fd`), and
-without the mirrored hypotheses, on one frame and on a vmapped batch. Medians of interleaved
+refiner cascade's end) with central and with forward finite differences (`AlignConfig.fd`),
+without the mirrored hypotheses, and with its soft silhouettes culled (`AlignConfig.cull`; the
+others not), on one frame and on a vmapped batch. Medians of interleaved
 rounds in one process (so their ratios hold on a busy machine), and each variant's error from
 starts a few centimetres and degrees off the truth (targets: our hard masks at the true poses).
 
@@ -58,8 +59,10 @@ def main():
     boxes = jax.vmap(lambda x: crop_box(mesh, K, x, SEGMENTER_ALIGN))(jnp.asarray(gt))
     T = pose_from_params(params_from_xypsi(jnp.asarray(gt)), SEGMENTER_ALIGN.camera_height_m)
     masks = jax.vmap(lambda t, b: render.render(mesh, t, K, S, S, box=b).mask)(T, boxes).astype(jnp.float32)
-    variants = {f"fd {fd}": dataclasses.replace(SEGMENTER_ALIGN, fd=fd, min_turn=0.0, max_shift=None) for fd in ("central", "forward")}
+    variants = {f"fd {fd}": dataclasses.replace(SEGMENTER_ALIGN, fd=fd, min_turn=0.0, max_shift=None, cull=False)
+                for fd in ("central", "forward")}
     variants["fd forward, no mirrored hypotheses"] = dataclasses.replace(variants["fd forward"], mirror=False)
+    variants["fd forward, culled soft silhouettes"] = dataclasses.replace(variants["fd forward"], cull=True)
     calls = {}
     for name, cfg in variants.items():
         fn = jax.jit(jax.vmap(lambda m, b, i, cfg=cfg: align_crop(mesh, m, b, K, i, CAM.width, CAM.height, cfg).xypsi))
