@@ -122,7 +122,9 @@ class AlignConfig:
     end, within centimetres, a longer move follows a wrong mask (`refine.SEGMENTER_ALIGN`)"""
     cull: bool = False
     """render the soft silhouettes without a closed model's back faces (`render.RenderConfig.soft_cull`):
-    half the pairs to visit, and their edge nearer the hard one"""
+    half the pairs to visit, and their edge nearer the hard one. Off by default: with it the default
+    stage ran 1.4-1.6x faster in the pipeline, but on validation IML+IR's ATE was worse, 1.097
+    (1.003-1.219), with 716 flips against 680 (BENCHMARKS.md, "Back faces")"""
     skip_iou: float | None = None
     """skip the optimisation (keep the initial estimate, `AlignResult.skipped`) where the observed
     mask and the initial estimate's hard silhouette already agree at this IoU or more (`start_iou`;
