@@ -51,7 +51,7 @@ class RenderConfig:
     for the backward pass of its custom VJP. chunk_pixels: pixel tests per step of the pair loop.
     near: near clipping plane (m). cutoff: a face's soft edge fades out at cutoff / sharpness px.
     soft_cull: `silhouette` also skips a closed mesh's faces turned away from the camera (`Mesh.winding`;
-    `render` always does, which changes nothing there). Half the (face, block) pairs, 1.5-1.9x faster
+    `render` always does, which changes nothing there). Half the (face, block) pairs, 1.8-2.2x faster
     at 64 px (`experiments/profile_ir.py --cull`), and the soft edge is
     then the front face's alone rather than the union of the front and back faces sharing it, so
     its 0.5 level sits nearer the hard edge; seams between front faces inside the silhouette are
